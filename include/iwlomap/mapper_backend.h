@@ -1,0 +1,156 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+/// \file
+/// IMapperBackend: the one interface of every map backend (RAM, Disk, OctoMap).
+///
+/// Frames and units: points are in metres in the map frame; intensities are in the sensor's raw
+/// units; log-odds are natural logarithms. The IWLO update every backend applies is documented in
+/// iwlo.h. Each call handles a whole batch: there is one virtual call per batch, never per voxel.
+///
+/// Errors: size mismatches and invalid parameters throw std::invalid_argument naming the value;
+/// a call that throws changes nothing. Non-finite points are skipped and counted
+/// (get_num_skipped_points()). An empty batch is a no-op.
+
+#include "iwlomap/iwlo.h"
+#include "iwlomap/voxel_key.h"
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace iwlomap {
+
+/// Memory held by a backend.
+struct MemoryStats {
+  size_t num_nodes;          ///< known voxels (OctoMap backend: octree nodes)
+  size_t num_leaf_nodes;     ///< known voxels (OctoMap backend: octree leaves)
+  double memory_mb;          ///< bytes held in RAM / 2^20 (MiB)
+  double memory_efficiency;  ///< known voxels / allocated voxel slots, in [0, 1]
+};
+
+/// State of one known voxel.
+struct VoxelState {
+  double log_odds = 0.0;     ///< current log-odds L
+  double probability = 0.5;  ///< 1 / (1 + exp(-L))
+  std::uint32_t count = 0;   ///< observations so far (saturates at iwlo::kMaxCount)
+};
+
+class IMapperBackend {
+ public:
+  virtual ~IMapperBackend() = default;
+
+  // ---- required (reference API) ----
+
+  /// Applies one IWLO observation per point, in order (duplicates are separate observations).
+  /// \param points      N x 3, metres, map frame
+  /// \param intensities N raw intensities
+  /// \param is_occupied N flags; a point is an occupied observation iff its flag is set and its
+  ///                    intensity exceeds the intensity threshold, else a free one
+  virtual void batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                                 const std::vector<bool>& is_occupied) = 0;
+  /// Learning-rate and clamp parameters (see IwloParams). Validated; throws without changing anything.
+  virtual void set_iwlo_params(double sharpness, double decay_rate, double min_alpha, double L_min,
+                               double L_max) = 0;
+  /// Log-odds increments of an occupied and of a free observation.
+  virtual void set_log_odds_params(double log_odds_occupied, double log_odds_free) = 0;
+  /// Intensity threshold (at or below: free evidence) and the intensity of full weight.
+  virtual void set_intensity_params(double intensity_threshold, double intensity_max) = 0;
+  /// Adaptive scale: on/off, P_th in (0, 1), r_max in [0, 1].
+  virtual void set_adaptive_params(bool enabled, double threshold, double max_ratio) = 0;
+  /// Probability above which a voxel counts as occupied for is_occupied() users (in (0, 1)).
+  virtual void set_occupied_threshold(double threshold) = 0;
+  /// Occupied voxels: every known voxel with probability > \p min_probability (strict), as an
+  /// N x 4 matrix of rows (x, y, z, p) with the voxel centre in metres, map frame. A negative
+  /// \p min_probability means 0.5; a value above 1 or NaN throws std::invalid_argument.
+  [[nodiscard]] virtual Eigen::MatrixXd get_occupied_voxels(double min_probability = 0.5) = 0;
+  [[nodiscard]] virtual MemoryStats get_memory_usage() const = 0;
+  /// Voxel edge length in metres.
+  [[nodiscard]] virtual double get_resolution() const = 0;
+  /// Number of known voxels.
+  [[nodiscard]] virtual size_t get_num_nodes() const = 0;
+  /// Forgets every voxel (parameters are kept).
+  virtual void clear() = 0;
+  /// "RAM", "Disk" or "OctoMap".
+  [[nodiscard]] virtual std::string get_backend_type() const = 0;
+
+  // ---- optional (these defaults are part of the contract) ----
+
+  /// Writes pending state to persistent storage.
+  virtual void flush() {}
+  /// Loads the storage covering the box [min_bound, max_bound] (metres, map frame).
+  virtual void preload_region(const Eigen::Vector3d& min_bound, const Eigen::Vector3d& max_bound) {
+    (void)min_bound;
+    (void)max_bound;
+  }
+  /// Bytes on disk.
+  [[nodiscard]] virtual size_t get_disk_usage() const { return 0; }
+  /// Frees storage that holds no information; returns the number of voxels removed.
+  virtual size_t prune() { return 0; }
+  [[nodiscard]] virtual bool supports_persistence() const { return false; }
+
+  // ---- additions every backend carries ----
+
+  /// As batch_update_iwlo() above, with a per-point weight W >= 0 multiplying each increment.
+  /// Throws std::invalid_argument for a negative or non-finite weight (nothing is applied).
+  virtual void batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                                 const std::vector<bool>& is_occupied, const Eigen::VectorXd& weights) = 0;
+
+  /// Integrates one scan taken from \p origin (metres, map frame): every ray from the origin marks
+  /// the voxels it crosses as free, up to but excluding the endpoint voxel, and the endpoint voxel
+  /// receives an occupied observation with the point's intensity (a hit at or below the intensity
+  /// threshold is free evidence). One scan updates each voxel at most once: occupied wins over
+  /// free, and several hits in one voxel count once with the largest intensity. With
+  /// \p max_range > 0, a point farther than max_range gives a free ray clipped at max_range and no
+  /// hit. Non-finite points are skipped and counted; a non-finite origin throws.
+  virtual void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                           const Eigen::VectorXd& intensities, double max_range = -1.0) = 0;
+
+  /// The state of the voxel containing \p point, or std::nullopt when it is unknown (never
+  /// observed). Throws std::invalid_argument for a non-finite point.
+  [[nodiscard]] virtual std::optional<VoxelState> query(const Eigen::Vector3d& point) const = 0;
+
+  /// Calls \p visit once for every known voxel, in an unspecified but deterministic order.
+  virtual void for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const = 0;
+
+  /// Points skipped so far because a coordinate or intensity was not finite (reset by clear()).
+  [[nodiscard]] virtual size_t get_num_skipped_points() const = 0;
+
+  /// All IWLO parameters at once (validated; throws std::invalid_argument without changing anything).
+  virtual void set_params(const IwloParams& params) = 0;
+  [[nodiscard]] virtual IwloParams get_params() const = 0;
+};
+
+/// Options of make_backend() that only some backends use.
+struct BackendOptions {
+  std::string directory;      ///< Disk: map directory
+  double tile_size = 10.0;    ///< Disk: tile edge in metres
+  size_t cache_tiles = 16;    ///< Disk: resident tiles
+  double prob_hit = 0.7;      ///< OctoMap: probability of a hit in OctoMap's own model
+  double prob_miss = 0.3;     ///< OctoMap: probability of a miss in OctoMap's own model
+};
+
+/// Creates a backend by name: "RAM" (case-insensitive; also "ram"), "Disk", "OctoMap". A backend
+/// whose layer is not part of this build, or an unknown name, throws std::invalid_argument that
+/// lists the available names.
+[[nodiscard]] std::unique_ptr<IMapperBackend> make_backend(const std::string& type, double resolution = 0.05,
+                                                           const BackendOptions& options = {});
+
+/// Factory signature for backends provided by an optional layer.
+using BackendFactory = std::function<std::unique_ptr<IMapperBackend>(double resolution, const BackendOptions&)>;
+
+/// Makes a backend of an optional layer available to make_backend() under \p type
+/// (case-insensitive). Layers call this; users rarely need to.
+void register_backend(const std::string& type, BackendFactory factory);
+
+/// Names make_backend() accepts in this process, in registration order.
+[[nodiscard]] std::vector<std::string> available_backends();
+
+}  // namespace iwlomap

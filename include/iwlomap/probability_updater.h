@@ -1,0 +1,72 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+/// \file
+/// ProbabilityUpdater: the RAM backend, an IWLO map on a sparse block grid.
+
+#include "iwlomap/mapper_backend.h"
+
+#include <memory>
+
+namespace iwlomap {
+
+/// The in-memory backend. Voxels live in dense 8x8x8 blocks that are allocated the first time one
+/// of their voxels is observed and found through a hash map keyed by block coordinate; a voxel
+/// costs 6 bytes inside its block (float log-odds, uint16 observation count). Keys are int32, so a
+/// map at 0.05 m spans +-107,000 km.
+///
+/// Not thread-safe: one thread at a time may call a mutating method; const methods may run
+/// concurrently with each other. Non-copyable, movable; a moved-from object throws
+/// std::logic_error from every method except destruction and assignment.
+class ProbabilityUpdater final : public IMapperBackend {
+ public:
+  /// \param resolution voxel edge in metres (> 0, finite); throws std::invalid_argument otherwise.
+  explicit ProbabilityUpdater(double resolution = 0.05);
+  ~ProbabilityUpdater() override;
+  ProbabilityUpdater(const ProbabilityUpdater&) = delete;
+  ProbabilityUpdater& operator=(const ProbabilityUpdater&) = delete;
+  ProbabilityUpdater(ProbabilityUpdater&&) noexcept;
+  ProbabilityUpdater& operator=(ProbabilityUpdater&&) noexcept;
+
+  void batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                         const std::vector<bool>& is_occupied) override;
+  void batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                         const std::vector<bool>& is_occupied, const Eigen::VectorXd& weights) override;
+  void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                   const Eigen::VectorXd& intensities, double max_range = -1.0) override;
+
+  void set_iwlo_params(double sharpness, double decay_rate, double min_alpha, double L_min, double L_max) override;
+  void set_log_odds_params(double log_odds_occupied, double log_odds_free) override;
+  void set_intensity_params(double intensity_threshold, double intensity_max) override;
+  void set_adaptive_params(bool enabled, double threshold, double max_ratio) override;
+  void set_occupied_threshold(double threshold) override;
+  void set_params(const IwloParams& params) override;
+  [[nodiscard]] IwloParams get_params() const override;
+
+  [[nodiscard]] Eigen::MatrixXd get_occupied_voxels(double min_probability = 0.5) override;
+  [[nodiscard]] std::optional<VoxelState> query(const Eigen::Vector3d& point) const override;
+  void for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const override;
+
+  /// memory_mb counts every byte the map holds: blocks, block table, hash index and the scratch
+  /// buffers kept between scans. memory_efficiency = known voxels / allocated voxel slots.
+  [[nodiscard]] MemoryStats get_memory_usage() const override;
+  [[nodiscard]] double get_resolution() const override;
+  [[nodiscard]] size_t get_num_nodes() const override;
+  [[nodiscard]] size_t get_num_skipped_points() const override;
+  void clear() override;
+  [[nodiscard]] std::string get_backend_type() const override { return "RAM"; }
+
+  /// Frees blocks that hold no known voxel, returns the scratch buffers and shrinks the block
+  /// index to fit. Returns the number of voxel slots freed (each an unknown voxel; known voxels
+  /// are never removed). Updates only allocate blocks they write, so the count is usually 0 and
+  /// the gain is the memory given back.
+  size_t prune() override;
+
+ private:
+  struct Impl;
+  Impl& impl();
+  const Impl& impl() const;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace iwlomap

@@ -1,0 +1,137 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+// The sparse block grid of the RAM backend (and of the Disk backend's tiles): voxels live in dense
+// 8x8x8 blocks, allocated on first touch; blocks are found through a FlatKeyMap keyed by block
+// coordinate. A voxel costs 6 bytes inside a block: float log-odds + uint16 count. A count of 0
+// means "unknown"; every observed voxel has count >= 1.
+
+#include "detail/flat_key_map.h"
+#include "iwlomap/voxel_key.h"
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+namespace iwlomap::detail {
+
+inline constexpr int kBlockShift = 3;
+inline constexpr int kBlockEdge = 1 << kBlockShift;                 // voxels along a block edge
+inline constexpr int kBlockVoxels = kBlockEdge * kBlockEdge * kBlockEdge;  // 512
+
+// Arithmetic right shift is floor division by 8 for negative keys too (guaranteed by GCC and
+// Clang, and by the standard from C++20).
+static_assert((-1 >> 1) == -1, "iwlomap needs arithmetic right shift of negative integers");
+
+[[nodiscard]] inline VoxelKey block_of(const VoxelKey& k) noexcept {
+  return {k.x >> kBlockShift, k.y >> kBlockShift, k.z >> kBlockShift};
+}
+[[nodiscard]] inline int index_in_block(const VoxelKey& k) noexcept {
+  constexpr int m = kBlockEdge - 1;
+  return (k.x & m) | ((k.y & m) << kBlockShift) | ((k.z & m) << (2 * kBlockShift));
+}
+[[nodiscard]] inline VoxelKey voxel_of(const VoxelKey& block, int index) noexcept {
+  constexpr int m = kBlockEdge - 1;
+  return {block.x * kBlockEdge + (index & m), block.y * kBlockEdge + ((index >> kBlockShift) & m),
+          block.z * kBlockEdge + ((index >> (2 * kBlockShift)) & m)};
+}
+
+struct VoxelBlock {
+  explicit VoxelBlock(const VoxelKey& k) : key(k) {
+    log_odds.fill(0.0f);
+    count.fill(0);
+  }
+  std::array<float, kBlockVoxels> log_odds;
+  std::array<std::uint16_t, kBlockVoxels> count;
+  std::uint32_t known = 0;  // voxels with count > 0
+  VoxelKey key;
+};
+
+class BlockGrid {
+ public:
+  [[nodiscard]] VoxelBlock* find(const VoxelKey& block_key) const noexcept {
+    const std::uint32_t i = index_.find(block_key);
+    return i == FlatKeyMap::kEmpty ? nullptr : blocks_[i].get();
+  }
+
+  VoxelBlock& get_or_create(const VoxelKey& block_key) {
+    const auto next = static_cast<std::uint32_t>(blocks_.size());
+    const std::uint32_t i = index_.insert(block_key, next);
+    if (i == next) blocks_.push_back(std::make_unique<VoxelBlock>(block_key));
+    return *blocks_[i];
+  }
+
+  [[nodiscard]] const std::vector<std::unique_ptr<VoxelBlock>>& blocks() const noexcept { return blocks_; }
+  [[nodiscard]] std::size_t num_blocks() const noexcept { return blocks_.size(); }
+
+  /// Drops blocks without known voxels and shrinks the index to fit; returns the slots freed.
+  std::size_t prune() {
+    std::size_t freed = 0;
+    std::vector<std::unique_ptr<VoxelBlock>> kept;
+    kept.reserve(blocks_.size());
+    for (auto& b : blocks_) {
+      if (b->known == 0)
+        freed += kBlockVoxels;
+      else
+        kept.push_back(std::move(b));
+    }
+    kept.shrink_to_fit();
+    blocks_.swap(kept);
+    index_.reset(blocks_.size());
+    for (std::uint32_t i = 0; i < blocks_.size(); ++i) index_.insert(blocks_[i]->key, i);
+    return freed;
+  }
+
+  void clear() {
+    blocks_.clear();
+    blocks_.shrink_to_fit();
+    index_.reset();
+  }
+
+  /// Bytes held: blocks, the block pointer array and the index.
+  [[nodiscard]] std::size_t bytes() const noexcept {
+    return blocks_.size() * sizeof(VoxelBlock) + blocks_.capacity() * sizeof(blocks_[0]) + index_.bytes();
+  }
+
+ private:
+  std::vector<std::unique_ptr<VoxelBlock>> blocks_;
+  FlatKeyMap index_;
+};
+
+/// Writing accessor with a last-block cache: consecutive updates in one block skip the hash look-up.
+class BlockAccessor {
+ public:
+  explicit BlockAccessor(BlockGrid& grid) : grid_(&grid) {}
+  VoxelBlock& block(const VoxelKey& block_key) {
+    if (last_ == nullptr || last_->key != block_key) last_ = &grid_->get_or_create(block_key);
+    return *last_;
+  }
+
+ private:
+  BlockGrid* grid_;
+  VoxelBlock* last_ = nullptr;
+};
+
+/// Reading accessor with a last-block cache that also caches a miss as a miss (never as a block).
+class ConstBlockAccessor {
+ public:
+  explicit ConstBlockAccessor(const BlockGrid& grid) : grid_(&grid) {}
+  [[nodiscard]] const VoxelBlock* block(const VoxelKey& block_key) {
+    if (!valid_ || last_key_ != block_key) {
+      last_ = grid_->find(block_key);
+      last_key_ = block_key;
+      valid_ = true;
+    }
+    return last_;
+  }
+
+ private:
+  const BlockGrid* grid_;
+  const VoxelBlock* last_ = nullptr;
+  VoxelKey last_key_{};
+  bool valid_ = false;
+};
+
+}  // namespace iwlomap::detail
