@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <string>
 
@@ -77,21 +78,65 @@ double adaptive_scale(double prob, bool occupied, const IwloParams& p) {
   return 1.0;
 }
 
-double delta(double log_odds_value, std::uint32_t count, double intensity, bool occupied_flag, double weight,
-             const IwloParams& p) {
-  const bool occupied = is_occupied_observation(occupied_flag, intensity, p);
-  const double prob = probability(log_odds_value);
-  const double alpha = learning_rate(count, p);
-  const double s = adaptive_scale(prob, occupied, p);
+namespace {
+// The increment given the adaptive scale; shared by delta() and Updater so both compute the same
+// expression in the same order.
+double scaled_delta(bool occupied, double intensity, double alpha, double s, double weight, const IwloParams& p) {
   const double d = occupied ? p.log_odds_occupied * intensity_weight(intensity, p) * alpha * s
                             : p.log_odds_free * alpha * s;
   return d * weight;
+}
+}  // namespace
+
+double delta(double log_odds_value, std::uint32_t count, double intensity, bool occupied_flag, double weight,
+             const IwloParams& p) {
+  const bool occupied = is_occupied_observation(occupied_flag, intensity, p);
+  const double s = adaptive_scale(probability(log_odds_value), occupied, p);
+  return scaled_delta(occupied, intensity, learning_rate(count, p), s, weight, p);
 }
 
 double step(double log_odds_value, std::uint32_t count, double intensity, bool occupied_flag, double weight,
             const IwloParams& p) {
   return std::clamp(log_odds_value + delta(log_odds_value, count, intensity, occupied_flag, weight, p), p.L_min,
                     p.L_max);
+}
+
+// The margin keeps the shortcut away from the thresholds by far more than the rounding error of
+// probability(), so the shortcut is taken only where adaptive_scale() returns exactly 1.
+Updater::Updater(const IwloParams& params) : p_(params) {
+  p_.validate();
+  constexpr double kMargin = 1e-6;
+  const double inf = std::numeric_limits<double>::infinity();
+  occupied_fast_from_ = p_.adaptive_enabled ? log_odds(p_.adaptive_threshold) + kMargin : -inf;
+  free_fast_to_ = p_.adaptive_enabled ? log_odds(1.0 - p_.adaptive_threshold) - kMargin : inf;
+  // Learning rates until they reach the floor (at most 4096 entries; beyond, computed).
+  constexpr std::uint32_t kMaxTable = 4096;
+  for (std::uint32_t n = 1; n <= kMaxTable; ++n) {
+    const double a = learning_rate(n, p_);
+    alpha_.push_back(a);
+    if (a == p_.min_alpha) break;
+  }
+  for (std::size_t i = 0; i < integer_weight_.size(); ++i)
+    integer_weight_[i] = intensity_weight(static_cast<double>(i), p_);
+}
+
+double Updater::step(double log_odds_value, std::uint32_t count, double intensity, bool occupied_flag,
+                     double weight) const {
+  const bool occupied = is_occupied_observation(occupied_flag, intensity, p_);
+  const bool unit_scale = occupied ? log_odds_value >= occupied_fast_from_ : log_odds_value <= free_fast_to_;
+  const double s = unit_scale ? 1.0 : adaptive_scale(probability(log_odds_value), occupied, p_);
+  const std::size_t n = count == 0 ? 1 : count;
+  const double alpha = n <= alpha_.size() ? alpha_[n - 1]
+                       : (alpha_.back() == p_.min_alpha ? p_.min_alpha : learning_rate(count, p_));
+  double d;
+  if (occupied) {
+    const bool tabled = intensity >= 0.0 && intensity < 256.0 && intensity == std::floor(intensity);
+    const double w = tabled ? integer_weight_[static_cast<std::size_t>(intensity)] : intensity_weight(intensity, p_);
+    d = p_.log_odds_occupied * w * alpha * s;
+  } else {
+    d = p_.log_odds_free * alpha * s;
+  }
+  return std::clamp(log_odds_value + d * weight, p_.L_min, p_.L_max);
 }
 
 }  // namespace iwlo

@@ -16,28 +16,47 @@ struct ProbabilityUpdater::Impl {
   // Applies one observation to the voxel \p key (the only place the grid changes).
   void apply(detail::BlockAccessor& acc, const VoxelKey& key, double intensity, bool occupied_flag,
              double weight) {
-    detail::VoxelBlock& b = acc.block(detail::block_of(key));
-    const int i = detail::index_in_block(key);
-    if (b.count[i] == 0) {
+    apply_in_block(acc.block(detail::block_of(key)), detail::index_in_block(key), intensity, occupied_flag, weight);
+  }
+  void apply_in_block(detail::VoxelBlock& b, int i, double intensity, bool occupied_flag, double weight) {
+    apply_voxel(b, b.voxels[static_cast<std::size_t>(i)], intensity, occupied_flag, weight);
+  }
+  void apply_voxel(detail::VoxelBlock& b, detail::Voxel& v, double intensity, bool occupied_flag, double weight) {
+    if (v.count == 0) {
       ++b.known;
       ++known;
     }
-    iwlo::apply_observation(b.log_odds[i], b.count[i], intensity, occupied_flag, weight, params);
+    iwlo::apply_observation(v.log_odds, v.count, intensity, occupied_flag, weight, updater);
   }
 
+  // Two passes: first resolve every observation's voxel (allocating blocks), then update with the
+  // voxel of a later observation prefetched, which hides most cache misses on large maps.
   void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                    const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights) {
     const std::size_t skip = detail::prepare_batch(points, intensities, is_occupied, weights, resolution, batch);
     detail::BlockAccessor acc(grid);
-    for (const detail::Observation& o : batch) apply(acc, o.key, o.intensity, o.occupied_flag, o.weight);
+    targets.resize(batch.size());
+    for (std::size_t i = 0; i < batch.size(); ++i) {
+      detail::VoxelBlock& b = acc.block(detail::block_of(batch[i].key));
+      targets[i] = {&b, &b.voxels[static_cast<std::size_t>(detail::index_in_block(batch[i].key))]};
+    }
+    constexpr std::size_t kAhead = 16;
+    for (std::size_t i = 0; i < batch.size(); ++i) {
+      if (i + kAhead < batch.size()) __builtin_prefetch(targets[i + kAhead].second, 1);
+      const detail::Observation& o = batch[i];
+      apply_voxel(*targets[i].first, *targets[i].second, o.intensity, o.occupied_flag, o.weight);
+    }
     skipped += skip;
   }
 
+  void set(const IwloParams& p) { updater = iwlo::Updater(p); }
+
   double resolution;
-  IwloParams params;
+  iwlo::Updater updater;
   detail::BlockGrid grid;
   detail::ScanScratch scratch;
   std::vector<detail::Observation> batch;  // reused between batches
+  std::vector<std::pair<detail::VoxelBlock*, detail::Voxel*>> targets;  // reused between batches
   std::size_t known = 0;
   std::size_t skipped = 0;
 };
@@ -76,28 +95,29 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
   const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution);
   detail::BlockAccessor acc(m.grid);
   m.scratch.for_each_observation(
-      [&](const VoxelKey& key, double intensity, bool occupied_flag) { m.apply(acc, key, intensity, occupied_flag, 1.0); });
+      [&](const VoxelKey& block_key, int index) { m.apply_in_block(acc.block(block_key), index, 0.0, false, 1.0); },
+      [&](const VoxelKey& key, double intensity) { m.apply(acc, key, intensity, true, 1.0); });
   m.skipped += skip;
 }
 
 void ProbabilityUpdater::set_iwlo_params(double sharpness, double decay_rate, double min_alpha, double L_min,
                                          double L_max) {
-  impl().params = detail::with_iwlo(impl().params, sharpness, decay_rate, min_alpha, L_min, L_max);
+  impl().set(detail::with_iwlo(impl().updater.params(), sharpness, decay_rate, min_alpha, L_min, L_max));
 }
 void ProbabilityUpdater::set_log_odds_params(double log_odds_occupied, double log_odds_free) {
-  impl().params = detail::with_log_odds(impl().params, log_odds_occupied, log_odds_free);
+  impl().set(detail::with_log_odds(impl().updater.params(), log_odds_occupied, log_odds_free));
 }
 void ProbabilityUpdater::set_intensity_params(double intensity_threshold, double intensity_max) {
-  impl().params = detail::with_intensity(impl().params, intensity_threshold, intensity_max);
+  impl().set(detail::with_intensity(impl().updater.params(), intensity_threshold, intensity_max));
 }
 void ProbabilityUpdater::set_adaptive_params(bool enabled, double threshold, double max_ratio) {
-  impl().params = detail::with_adaptive(impl().params, enabled, threshold, max_ratio);
+  impl().set(detail::with_adaptive(impl().updater.params(), enabled, threshold, max_ratio));
 }
 void ProbabilityUpdater::set_occupied_threshold(double threshold) {
-  impl().params = detail::with_occupied_threshold(impl().params, threshold);
+  impl().set(detail::with_occupied_threshold(impl().updater.params(), threshold));
 }
-void ProbabilityUpdater::set_params(const IwloParams& params) { impl().params = detail::validated(params); }
-IwloParams ProbabilityUpdater::get_params() const { return impl().params; }
+void ProbabilityUpdater::set_params(const IwloParams& params) { impl().set(params); }
+IwloParams ProbabilityUpdater::get_params() const { return impl().updater.params(); }
 
 Eigen::MatrixXd ProbabilityUpdater::get_occupied_voxels(double min_probability) {
   const double threshold = detail::resolve_min_probability(min_probability);
@@ -105,8 +125,8 @@ Eigen::MatrixXd ProbabilityUpdater::get_occupied_voxels(double min_probability) 
   std::vector<double> rows;
   for (const auto& b : m.grid.blocks()) {
     for (int i = 0; i < detail::kBlockVoxels; ++i) {
-      if (b->count[i] == 0) continue;
-      const double p = iwlo::probability(b->log_odds[i]);
+      if (b->voxels[i].count == 0) continue;
+      const double p = iwlo::probability(b->voxels[i].log_odds);
       if (!(p > threshold)) continue;
       const Eigen::Vector3d c = key_to_center(detail::voxel_of(b->key, i), m.resolution);
       rows.insert(rows.end(), {c.x(), c.y(), c.z(), p});
@@ -121,15 +141,15 @@ std::optional<VoxelState> ProbabilityUpdater::query(const Eigen::Vector3d& point
   const detail::VoxelBlock* b = m.grid.find(detail::block_of(key));
   if (b == nullptr) return std::nullopt;
   const int i = detail::index_in_block(key);
-  if (b->count[i] == 0) return std::nullopt;
-  return VoxelState{b->log_odds[i], iwlo::probability(b->log_odds[i]), b->count[i]};
+  if (b->voxels[i].count == 0) return std::nullopt;
+  return VoxelState{b->voxels[i].log_odds, iwlo::probability(b->voxels[i].log_odds), b->voxels[i].count};
 }
 
 void ProbabilityUpdater::for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const {
   for (const auto& b : impl().grid.blocks()) {
     for (int i = 0; i < detail::kBlockVoxels; ++i) {
-      if (b->count[i] == 0) continue;
-      visit(detail::voxel_of(b->key, i), VoxelState{b->log_odds[i], iwlo::probability(b->log_odds[i]), b->count[i]});
+      if (b->voxels[i].count == 0) continue;
+      visit(detail::voxel_of(b->key, i), VoxelState{b->voxels[i].log_odds, iwlo::probability(b->voxels[i].log_odds), b->voxels[i].count});
     }
   }
 }
@@ -137,7 +157,7 @@ void ProbabilityUpdater::for_each_voxel(const std::function<void(const VoxelKey&
 MemoryStats ProbabilityUpdater::get_memory_usage() const {
   const Impl& m = impl();
   const std::size_t bytes = sizeof(Impl) + m.grid.bytes() + m.scratch.bytes() +
-                            m.batch.capacity() * sizeof(detail::Observation);
+                            m.batch.capacity() * sizeof(detail::Observation) + m.targets.capacity() * sizeof(m.targets[0]);
   const std::size_t slots = m.grid.num_blocks() * detail::kBlockVoxels;
   return MemoryStats{m.known, m.known, static_cast<double>(bytes) / (1024.0 * 1024.0),
                      slots == 0 ? 0.0 : static_cast<double>(m.known) / static_cast<double>(slots)};
@@ -152,6 +172,7 @@ void ProbabilityUpdater::clear() {
   m.grid.clear();
   m.scratch.release();
   m.batch = {};
+  m.targets = {};
   m.known = 0;
   m.skipped = 0;
 }
@@ -160,6 +181,7 @@ size_t ProbabilityUpdater::prune() {
   Impl& m = impl();
   m.scratch.release();
   m.batch = {};
+  m.targets = {};
   return m.grid.prune();
 }
 

@@ -29,41 +29,50 @@ namespace iwlomap {
 /// \param visit        callable as visit(const VoxelKey&).
 template <class Visitor>
 void cast_ray(const Eigen::Vector3d& origin, const Eigen::Vector3d& end, double resolution, Visitor&& visit) {
-  VoxelKey key = world_to_key(origin, resolution);
+  const VoxelKey start_key = world_to_key(origin, resolution);
   const VoxelKey end_key = world_to_key(end, resolution);
-  const std::int64_t diff[3] = {static_cast<std::int64_t>(end_key.x) - key.x,
-                                static_cast<std::int64_t>(end_key.y) - key.y,
-                                static_cast<std::int64_t>(end_key.z) - key.z};
-  const std::int64_t total = std::llabs(diff[0]) + std::llabs(diff[1]) + std::llabs(diff[2]);
+  const std::int64_t dx = static_cast<std::int64_t>(end_key.x) - start_key.x;
+  const std::int64_t dy = static_cast<std::int64_t>(end_key.y) - start_key.y;
+  const std::int64_t dz = static_cast<std::int64_t>(end_key.z) - start_key.z;
+  std::int64_t nx = std::llabs(dx), ny = std::llabs(dy), nz = std::llabs(dz);
+  const std::int64_t total = nx + ny + nz;
   if (total == 0) return;
 
   constexpr double kInf = std::numeric_limits<double>::infinity();
-  std::int32_t* coord[3] = {&key.x, &key.y, &key.z};
-  std::int64_t remaining[3];
-  int step[3];
-  double t_max[3];
-  double t_delta[3];
-  for (int i = 0; i < 3; ++i) {
-    remaining[i] = std::llabs(diff[i]);
-    step[i] = diff[i] > 0 ? 1 : (diff[i] < 0 ? -1 : 0);
-    const double d = end[i] - origin[i];
-    if (step[i] == 0) {
-      t_max[i] = kInf;
-      t_delta[i] = kInf;
-      continue;
+  // Parameter t in [0, 1] along origin -> end at which the walk next crosses a boundary of each
+  // axis (t_*), and the parameter span of one voxel along it (d_*). An axis with no step left
+  // gets t = inf, so it can never be chosen.
+  const auto setup = [&](std::int64_t diff, std::int32_t k, double o, double e, double& t, double& delta) {
+    if (diff == 0) {
+      t = kInf;
+      delta = kInf;
+      return;
     }
-    const double boundary = (static_cast<double>(*coord[i]) + (step[i] > 0 ? 1.0 : 0.0)) * resolution;
-    t_max[i] = (boundary - origin[i]) / d;
-    t_delta[i] = resolution / std::abs(d);
-  }
+    const double d = e - o;
+    const double boundary = (static_cast<double>(k) + (diff > 0 ? 1.0 : 0.0)) * resolution;
+    t = (boundary - o) / d;
+    delta = resolution / std::abs(d);
+  };
+  double tx, ty, tz, ddx, ddy, ddz;
+  setup(dx, start_key.x, origin.x(), end.x(), tx, ddx);
+  setup(dy, start_key.y, origin.y(), end.y(), ty, ddy);
+  setup(dz, start_key.z, origin.z(), end.z(), tz, ddz);
+  const std::int32_t sx = dx > 0 ? 1 : -1, sy = dy > 0 ? 1 : -1, sz = dz > 0 ? 1 : -1;
 
+  VoxelKey key = start_key;
   visit(static_cast<const VoxelKey&>(key));
   for (std::int64_t s = 1; s < total; ++s) {
-    int axis = 0;
-    if (t_max[1] < t_max[axis]) axis = 1;
-    if (t_max[2] < t_max[axis]) axis = 2;
-    *coord[axis] += step[axis];
-    t_max[axis] = --remaining[axis] == 0 ? kInf : t_max[axis] + t_delta[axis];
+    // Ties go to x, then y, then z (documented above).
+    if (tx <= ty && tx <= tz) {
+      key.x += sx;
+      tx = --nx == 0 ? kInf : tx + ddx;
+    } else if (ty <= tz) {
+      key.y += sy;
+      ty = --ny == 0 ? kInf : ty + ddy;
+    } else {
+      key.z += sz;
+      tz = --nz == 0 ? kInf : tz + ddz;
+    }
     visit(static_cast<const VoxelKey&>(key));
   }
 }

@@ -2,6 +2,8 @@
 #include "detail/batch_input.h"
 
 #include <cmath>
+#include <cstdint>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
@@ -29,6 +31,18 @@ void check_points_shape(const Eigen::MatrixXd& points, Eigen::Index n_intensitie
   if (n_intensities != points.rows())
     throw std::invalid_argument("iwlomap: intensities has " + std::to_string(n_intensities) +
                                 " entries but points has " + std::to_string(points.rows()) + " rows");
+}
+
+// floor(x / r) computed once, range-checked, then converted (is_representable() + world_to_key()
+// in one pass).
+bool checked_key(const Eigen::Vector3d& p, double resolution, VoxelKey& key) {
+  constexpr double lo = static_cast<double>(std::numeric_limits<std::int32_t>::min());
+  constexpr double hi = static_cast<double>(std::numeric_limits<std::int32_t>::max());
+  const double kx = std::floor(p.x() / resolution), ky = std::floor(p.y() / resolution),
+               kz = std::floor(p.z() / resolution);
+  if (!(kx >= lo && kx <= hi && ky >= lo && ky <= hi && kz >= lo && kz <= hi)) return false;
+  key = {static_cast<std::int32_t>(kx), static_cast<std::int32_t>(ky), static_cast<std::int32_t>(kz)};
+  return true;
 }
 
 }  // namespace
@@ -66,11 +80,12 @@ std::size_t prepare_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& 
       ++skipped;
       continue;
     }
-    if (!is_representable(p, resolution)) {
+    VoxelKey key;
+    if (!checked_key(p, resolution, key)) {
       out.clear();
       throw_out_of_range(i, p, resolution);
     }
-    out.push_back({world_to_key(p, resolution), intensity, w, static_cast<bool>(is_occupied[i])});
+    out.push_back({key, intensity, w, static_cast<bool>(is_occupied[i])});
   }
   return skipped;
 }

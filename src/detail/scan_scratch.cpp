@@ -8,11 +8,14 @@
 
 namespace iwlomap::detail {
 
-ScanScratch::Block& ScanScratch::block(const VoxelKey& block_key) {
-  const auto next = static_cast<std::uint32_t>(blocks_.size());
-  const std::uint32_t i = block_index_.insert(block_key, next);
-  if (i == next) blocks_.push_back(Block{block_key, {}, {}});
-  return blocks_[i];
+std::size_t ScanScratch::chunk(const VoxelKey& chunk_key) {
+  const auto next = static_cast<std::uint32_t>(chunks_.size());
+  const std::uint32_t i = chunk_index_.insert(chunk_key, next);
+  if (i == next) {
+    chunks_.emplace_back();
+    chunks_.back().key = chunk_key;
+  }
+  return i;
 }
 
 void ScanScratch::add_hit(const VoxelKey& k, double intensity) {
@@ -20,9 +23,9 @@ void ScanScratch::add_hit(const VoxelKey& k, double intensity) {
   const std::uint32_t i = hit_index_.insert(k, next);
   if (i == next) {
     hits_.push_back({k, intensity});
-    const int bit = index_in_block(k);
-    block(block_of(k)).hit[static_cast<std::size_t>(bit >> 6)] |= std::uint64_t{1} << (bit & 63);
-    last_ = -1;  // block() may have reallocated blocks_
+    const std::size_t c = chunk({k.x >> kChunkShift, k.y >> kChunkShift, k.z >> kChunkShift});
+    const std::size_t bit = bit_in_chunk(k);
+    chunks_[c].hit[bit >> 6] |= std::uint64_t{1} << (bit & 63);
   } else if (intensity > hits_[i].intensity) {
     hits_[i].intensity = intensity;
   }
@@ -30,8 +33,8 @@ void ScanScratch::add_hit(const VoxelKey& k, double intensity) {
 
 std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                  const Eigen::VectorXd& intensities, double max_range, double resolution) {
-  blocks_.clear();
-  block_index_.clear_keep_capacity();
+  chunks_.clear();
+  chunk_index_.clear_keep_capacity();
   hits_.clear();
   hit_index_.clear_keep_capacity();
   last_ = -1;
@@ -58,14 +61,14 @@ std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::Mat
 }
 
 std::size_t ScanScratch::bytes() const noexcept {
-  return blocks_.capacity() * sizeof(Block) + hits_.capacity() * sizeof(Hit) + block_index_.bytes() +
+  return chunks_.capacity() * sizeof(Chunk) + hits_.capacity() * sizeof(Hit) + chunk_index_.bytes() +
          hit_index_.bytes();
 }
 
 void ScanScratch::release() {
-  blocks_ = {};
+  chunks_ = {};
   hits_ = {};
-  block_index_.reset();
+  chunk_index_.reset();
   hit_index_.reset();
   last_ = -1;
 }

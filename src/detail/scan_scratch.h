@@ -2,9 +2,11 @@
 #pragma once
 
 // Per-scan scratch for insert_scan(): it turns the rays of one scan into at most one observation
-// per voxel before any backend storage is touched. Free voxels are bits in per-block masks (a ray
-// step costs a bit-set, and a hash look-up only when the ray enters another block); hits keep the
-// largest intensity per voxel. Occupied wins over free. Because OR and max commute, the result
+// per voxel before any backend storage is touched. Free voxels are bits in the masks of 32^3-voxel
+// chunks (a ray step costs a bit-set, and a hash look-up only when the ray enters another chunk,
+// about every 40 steps); hits keep the largest intensity per voxel. Inside a chunk the bits are
+// laid out block by block (64 blocks of 8^3 voxels, 512 bits each), so that applying the scratch
+// visits each grid block once. Occupied wins over free. Because OR and max commute, the result
 // does not depend on the order of the rays, which is what lets rays be cast in any order or on
 // several threads and still give bit-identical maps.
 
@@ -23,10 +25,14 @@ namespace iwlomap::detail {
 
 class ScanScratch {
  public:
-  struct Block {
-    VoxelKey key;                          // block coordinate
-    std::array<std::uint64_t, 8> free{};   // voxels crossed by a ray
-    std::array<std::uint64_t, 8> hit{};    // voxels holding an endpoint
+  static constexpr int kChunkShift = 5;                                  // 32 voxels
+  static constexpr int kBlocksPerChunkEdge = 1 << (kChunkShift - kBlockShift);  // 4
+  static constexpr int kBlocksPerChunk = kBlocksPerChunkEdge * kBlocksPerChunkEdge * kBlocksPerChunkEdge;
+  static constexpr int kWordsPerBlock = kBlockVoxels / 64;  // 8
+  struct Chunk {
+    VoxelKey key;  // chunk coordinate (voxel key >> 5)
+    std::array<std::uint64_t, kBlocksPerChunk * kWordsPerBlock> free{};  // voxels crossed by a ray
+    std::array<std::uint64_t, kBlocksPerChunk * kWordsPerBlock> hit{};   // voxels holding an endpoint
   };
   struct Hit {
     VoxelKey key;
@@ -39,25 +45,30 @@ class ScanScratch {
   std::size_t collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                       const Eigen::VectorXd& intensities, double max_range, double resolution);
 
-  [[nodiscard]] const std::vector<Block>& blocks() const noexcept { return blocks_; }
+  [[nodiscard]] std::size_t num_chunks() const noexcept { return chunks_.size(); }
   [[nodiscard]] const std::vector<Hit>& hits() const noexcept { return hits_; }
 
-  /// Calls fn(key, intensity, occupied_flag) once per observed voxel: first every free voxel that
-  /// holds no hit (intensity 0, flag false), block by block, then every hit voxel (its largest
-  /// intensity, flag true).
-  template <class Fn>
-  void for_each_observation(Fn&& fn) const {
-    for (const Block& b : blocks_) {
-      for (int w = 0; w < 8; ++w) {
-        std::uint64_t bits = b.free[w] & ~b.hit[w];
-        while (bits != 0) {
-          const int bit = __builtin_ctzll(bits);
-          bits &= bits - 1;
-          fn(voxel_of(b.key, w * 64 + bit), 0.0, false);
+  /// Calls free_fn(block_key, index_in_block) once per free voxel that holds no hit, grouped by
+  /// grid block (8^3) so consecutive calls share a block, then hit_fn(key, intensity) once per
+  /// hit voxel with its largest intensity.
+  template <class FreeFn, class HitFn>
+  void for_each_observation(FreeFn&& free_fn, HitFn&& hit_fn) const {
+    for (const Chunk& c : chunks_) {
+      for (int b = 0; b < kBlocksPerChunk; ++b) {
+        const VoxelKey block_key{c.key.x * kBlocksPerChunkEdge + (b & 3), c.key.y * kBlocksPerChunkEdge + ((b >> 2) & 3),
+                                 c.key.z * kBlocksPerChunkEdge + (b >> 4)};
+        for (int w = 0; w < kWordsPerBlock; ++w) {
+          const std::size_t word = static_cast<std::size_t>(b * kWordsPerBlock + w);
+          std::uint64_t bits = c.free[word] & ~c.hit[word];
+          while (bits != 0) {
+            const int bit = __builtin_ctzll(bits);
+            bits &= bits - 1;
+            free_fn(block_key, w * 64 + bit);
+          }
         }
       }
     }
-    for (const Hit& h : hits_) fn(h.key, h.intensity, true);
+    for (const Hit& h : hits_) hit_fn(h.key, h.intensity);
   }
 
   /// Bytes held by the scratch buffers (kept between scans to avoid reallocation).
@@ -66,17 +77,23 @@ class ScanScratch {
   void release();
 
  private:
-  Block& block(const VoxelKey& block_key);
+  // Bit of voxel k inside its chunk: block-major, then index_in_block().
+  [[nodiscard]] static std::size_t bit_in_chunk(const VoxelKey& k) noexcept {
+    constexpr int m = kBlocksPerChunkEdge - 1;
+    const int b = ((k.x >> kBlockShift) & m) | (((k.y >> kBlockShift) & m) << 2) | (((k.z >> kBlockShift) & m) << 4);
+    return static_cast<std::size_t>(b * kBlockVoxels + index_in_block(k));
+  }
+  std::size_t chunk(const VoxelKey& chunk_key);
   void mark_free(const VoxelKey& k) {
-    const VoxelKey bk = block_of(k);
-    if (last_ < 0 || blocks_[static_cast<std::size_t>(last_)].key != bk) last_ = static_cast<std::int64_t>(&block(bk) - blocks_.data());
-    const int i = index_in_block(k);
-    blocks_[static_cast<std::size_t>(last_)].free[static_cast<std::size_t>(i >> 6)] |= std::uint64_t{1} << (i & 63);
+    const VoxelKey ck{k.x >> kChunkShift, k.y >> kChunkShift, k.z >> kChunkShift};
+    if (last_ < 0 || chunks_[static_cast<std::size_t>(last_)].key != ck) last_ = static_cast<std::int64_t>(chunk(ck));
+    const std::size_t bit = bit_in_chunk(k);
+    chunks_[static_cast<std::size_t>(last_)].free[bit >> 6] |= std::uint64_t{1} << (bit & 63);
   }
   void add_hit(const VoxelKey& k, double intensity);
 
-  std::vector<Block> blocks_;
-  FlatKeyMap block_index_;
+  std::vector<Chunk> chunks_;
+  FlatKeyMap chunk_index_;
   std::vector<Hit> hits_;
   FlatKeyMap hit_index_;
   std::int64_t last_ = -1;
