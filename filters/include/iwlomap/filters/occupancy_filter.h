@@ -1,0 +1,100 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+/// \file
+/// OccupancyFilter: a pcl::Filter that integrates each input cloud into an IWLO occupancy map and
+/// returns the occupied voxels of the whole map.
+
+#include <iwlomap/iwlo.h>
+#include <iwlomap/mapper_backend.h>
+
+#include <pcl/filters/filter.h>
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+
+#include <memory>
+#include <string>
+
+namespace iwlomap {
+
+/// Integrates clouds into an occupancy map, one call of filter() per frame, and outputs the map's
+/// occupied voxels.
+///
+/// Input: points in metres in the map frame, as PCL stores them; `sensor_origin_` of the input
+/// cloud is the sensor position in that frame (the ray origin), and `sensor_orientation_` is only
+/// carried along (the points are not rotated). `setIndices()` is honoured; points with a NaN or
+/// infinite coordinate or intensity are skipped (the map counts them). A point type without an
+/// `intensity` field (e.g. pcl::PointXYZ) gives every point the intensity `intensity_max`, so every
+/// point is a full-weight hit.
+///
+/// Output: one point per occupied voxel of the whole map (all frames so far), at the voxel centre;
+/// `intensity` (where the type has it) is the occupancy probability in (threshold, 1]. The output
+/// is unorganised (height 1) and dense; header, sensor origin and orientation are the input's.
+/// An empty input integrates nothing and returns the current map. In-place use
+/// (`f.filter(*cloud)` with `cloud` the input) works.
+///
+/// Instantiated for pcl::PointXYZI, pcl::PointXYZINormal and pcl::PointXYZ; other point types
+/// compile by including `iwlomap/filters/impl/occupancy_filter.hpp`.
+template <typename PointT>
+class OccupancyFilter : public pcl::Filter<PointT> {
+  using PointCloud = typename pcl::Filter<PointT>::PointCloud;
+
+ public:
+  using Ptr = std::shared_ptr<OccupancyFilter<PointT>>;
+  using ConstPtr = std::shared_ptr<const OccupancyFilter<PointT>>;
+
+  OccupancyFilter();
+
+  /// Voxel edge in metres (default 0.05) of the map created on first use. Throws
+  /// std::invalid_argument for a value <= 0 or not finite, std::logic_error once a map exists with
+  /// another resolution.
+  void setResolution(double resolution);
+  [[nodiscard]] double getResolution() const { return map_ ? map_->get_resolution() : resolution_; }
+
+  /// Uses \p backend as the map (any IMapperBackend: RAM, Disk, OctoMap). Its resolution and
+  /// contents are kept; the filter's IWLO parameters are applied to it at the next filter() call
+  /// only if setIwloParams() or setOccupiedThreshold() was called. Throws std::invalid_argument
+  /// for a null pointer.
+  void setBackend(std::shared_ptr<IMapperBackend> backend);
+
+  /// The map (created with the current resolution on first call when none was set).
+  [[nodiscard]] std::shared_ptr<IMapperBackend> getMap();
+
+  /// All IWLO parameters (validated: throws std::invalid_argument). Applied to the map at the next
+  /// filter() call.
+  void setIwloParams(const IwloParams& params);
+  [[nodiscard]] const IwloParams& getIwloParams() const { return params_; }
+
+  /// Probability above which a voxel is output (default 0.7, in (0, 1)).
+  void setOccupiedThreshold(double threshold);
+  [[nodiscard]] double getOccupiedThreshold() const { return params_.occupied_threshold; }
+
+  /// Rays longer than this (metres) are clipped and give no hit; negative: unlimited (default).
+  void setMaxRange(double max_range);
+  [[nodiscard]] double getMaxRange() const { return max_range_; }
+
+  /// On (default): free space is ray-cast from the input's sensor origin to every point. Off: every
+  /// point is one observation, occupied iff its intensity exceeds the threshold (sonar pipelines).
+  void setRayCasting(bool enabled) { ray_casting_ = enabled; }
+  [[nodiscard]] bool getRayCasting() const { return ray_casting_; }
+
+ protected:
+  using pcl::Filter<PointT>::filter_name_;
+  using pcl::Filter<PointT>::input_;
+  using pcl::Filter<PointT>::indices_;
+
+  /// Integrates input_ (restricted to indices_) into the map and writes its occupied voxels.
+  void applyFilter(PointCloud& output) override;
+
+ private:
+  void ensureMap();
+
+  std::shared_ptr<IMapperBackend> map_;
+  double resolution_ = 0.05;
+  IwloParams params_;
+  bool params_pending_ = true;  // apply params_ to the map at the next filter()
+  double max_range_ = -1.0;
+  bool ray_casting_ = true;
+};
+
+}  // namespace iwlomap

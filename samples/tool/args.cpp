@@ -1,0 +1,83 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#include "args.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <cstdlib>
+
+namespace iwlomap::tool {
+
+Args::Args(const std::vector<std::string>& argv, const std::set<std::string>& value_options,
+           const std::set<std::string>& flags) {
+  for (std::size_t i = 0; i < argv.size(); ++i) {
+    const std::string& a = argv[i];
+    if (a.size() < 2 || a[0] != '-' || a == "--" || (a[1] != '-' && (std::isdigit(static_cast<unsigned char>(a[1])) || a[1] == '.'))) {
+      positional_.push_back(a == "--" ? std::string() : a);
+      if (a == "--") {  // everything after -- is positional
+        positional_.pop_back();
+        positional_.insert(positional_.end(), argv.begin() + static_cast<std::ptrdiff_t>(i) + 1, argv.end());
+        break;
+      }
+      continue;
+    }
+    std::string name = a, value;
+    bool inline_value = false;
+    if (const auto eq = a.find('='); eq != std::string::npos) {
+      name = a.substr(0, eq);
+      value = a.substr(eq + 1);
+      inline_value = true;
+    }
+    if (flags.count(name) > 0) {
+      if (inline_value) throw UsageError("option " + name + " takes no value");
+      flags_.insert(name);
+    } else if (value_options.count(name) > 0) {
+      if (!inline_value) {
+        if (i + 1 >= argv.size()) throw UsageError("option " + name + " needs a value");
+        value = argv[++i];
+      }
+      values_[name] = value;
+    } else {
+      throw UsageError("unknown option " + name);
+    }
+  }
+}
+
+std::optional<std::string> Args::value(const std::string& name) const {
+  const auto it = values_.find(name);
+  if (it == values_.end()) return std::nullopt;
+  return it->second;
+}
+
+std::optional<double> Args::number(const std::string& name) const {
+  const auto v = value(name);
+  if (!v) return std::nullopt;
+  char* end = nullptr;
+  const double d = std::strtod(v->c_str(), &end);
+  if (v->empty() || end != v->c_str() + v->size() || !std::isfinite(d))
+    throw UsageError("option " + name + " needs a finite number, got '" + *v + "'");
+  return d;
+}
+
+double Args::number(const std::string& name, double fallback) const { return number(name).value_or(fallback); }
+
+long Args::integer(const std::string& name, long fallback) const {
+  const auto v = value(name);
+  if (!v) return fallback;
+  char* end = nullptr;
+  const long n = std::strtol(v->c_str(), &end, 10);
+  if (v->empty() || end != v->c_str() + v->size())
+    throw UsageError("option " + name + " needs an integer, got '" + *v + "'");
+  return n;
+}
+
+std::string extension(const std::string& path) {
+  const auto slash = path.find_last_of('/');
+  const auto dot = path.find_last_of('.');
+  if (dot == std::string::npos || (slash != std::string::npos && dot < slash)) return "";
+  std::string e = path.substr(dot);
+  std::transform(e.begin(), e.end(), e.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return e;
+}
+
+}  // namespace iwlomap::tool

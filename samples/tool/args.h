@@ -1,0 +1,45 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+// A small command-line parser for the iwlomap tool: `--name value`, `--name=value`, flags and
+// positional arguments. Bad usage raises UsageError, which the tool turns into exit code 2.
+
+#include <cstddef>
+#include <map>
+#include <optional>
+#include <set>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace iwlomap::tool {
+
+struct UsageError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+class Args {
+ public:
+  /// \param value_options options that take a value; \param flags options without one.
+  Args(const std::vector<std::string>& argv, const std::set<std::string>& value_options,
+       const std::set<std::string>& flags);
+
+  [[nodiscard]] bool has(const std::string& name) const { return values_.count(name) > 0 || flags_.count(name) > 0; }
+  [[nodiscard]] bool flag(const std::string& name) const { return flags_.count(name) > 0; }
+  [[nodiscard]] std::optional<std::string> value(const std::string& name) const;
+  /// The option's value as a finite number, or \p fallback when absent.
+  [[nodiscard]] double number(const std::string& name, double fallback) const;
+  [[nodiscard]] std::optional<double> number(const std::string& name) const;
+  [[nodiscard]] long integer(const std::string& name, long fallback) const;
+  [[nodiscard]] const std::vector<std::string>& positional() const { return positional_; }
+
+ private:
+  std::map<std::string, std::string> values_;
+  std::set<std::string> flags_;
+  std::vector<std::string> positional_;
+};
+
+/// Lower-case file extension with the dot (".pcd"), or "" when there is none.
+[[nodiscard]] std::string extension(const std::string& path);
+
+}  // namespace iwlomap::tool

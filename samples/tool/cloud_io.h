@@ -1,0 +1,26 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+// Reading and writing .pcd / .ply clouds for the iwlomap tool, with errors that name the file.
+
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+
+#include <string>
+
+namespace iwlomap::tool {
+
+struct LoadedCloud {
+  pcl::PointCloud<pcl::PointXYZI>::Ptr cloud;
+  bool has_intensity = true;  ///< false: the file had no intensity field (filled with a default)
+};
+
+/// Loads a .pcd or .ply file as PointXYZI, keeping the sensor origin and orientation of a PCD's
+/// VIEWPOINT. A file without an `intensity` field gets \p missing_intensity for every point.
+/// Throws std::runtime_error naming the file when it is missing, unreadable or has no x/y/z.
+[[nodiscard]] LoadedCloud load_cloud(const std::string& path, float missing_intensity);
+
+/// Writes a cloud as binary .pcd or .ply by the extension; throws std::runtime_error on failure.
+void save_cloud(const std::string& path, const pcl::PointCloud<pcl::PointXYZI>& cloud);
+
+}  // namespace iwlomap::tool

@@ -1,0 +1,16 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+// The tool's subcommands. Each returns the process exit code, throws UsageError for bad usage and
+// std::exception for failures.
+
+#include <string>
+#include <vector>
+
+namespace iwlomap::tool {
+
+int run_map(const std::vector<std::string>& args);
+int run_info(const std::vector<std::string>& args);
+int run_generate(const std::vector<std::string>& args);
+
+}  // namespace iwlomap::tool

@@ -1,0 +1,55 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// The iwlomap command-line tool: maps .pcd/.ply clouds into an IWLO occupancy map and writes the
+// occupied voxels. Exit codes: 0 success, 1 failure, 2 bad usage; one line on stderr on error.
+
+#include "args.h"
+#include "cloud_io.h"
+#include "commands.h"
+
+#include <iostream>
+#include <string>
+#include <vector>
+
+namespace {
+
+const char* kUsage = R"(usage: iwlomap <command> [options]
+
+Probabilistic 3D occupancy mapping of intensity point clouds (IWLO).
+
+commands:
+  map        integrate .pcd/.ply clouds into one map, write the occupied voxels
+  info       describe a .pcd or .ply file
+  generate   write a synthetic lidar scan (.pcd) to try the tool on
+
+Run 'iwlomap <command> --help' for the options of a command.
+)";
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace iwlomap::tool;
+  const std::vector<std::string> args(argv + 1, argv + argc);
+  if (args.empty()) {
+    std::cerr << kUsage;
+    return 2;
+  }
+  const std::string& command = args[0];
+  const std::vector<std::string> rest(args.begin() + 1, args.end());
+  try {
+    if (command == "-h" || command == "--help" || command == "help") {
+      std::cout << kUsage;
+      return 0;
+    }
+    if (command == "map") return run_map(rest);
+    if (command == "info") return run_info(rest);
+    if (command == "generate") return run_generate(rest);
+    throw UsageError("unknown command '" + command + "'");
+  } catch (const UsageError& e) {
+    std::cerr << "iwlomap " << (command.rfind('-', 0) == 0 ? std::string() : command + " ") << "usage error: " << e.what()
+              << " (see 'iwlomap " << (command.rfind('-', 0) == 0 ? std::string() : command + " ") << "--help')\n";
+    return 2;
+  } catch (const std::exception& e) {
+    std::cerr << "iwlomap " << command << ": error: " << e.what() << "\n";
+    return 1;
+  }
+}

@@ -1,0 +1,96 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#include "map_options.h"
+
+#include <algorithm>
+#include <cctype>
+
+namespace iwlomap::tool {
+
+std::set<std::string> map_value_options() {
+  return {"--resolution", "--backend", "--tiles", "--max-range", "--sensor", "--threshold",
+          "--sharpness", "--decay-rate", "--min-alpha", "--l-min", "--l-max", "--l-occ", "--l-free",
+          "--intensity-threshold", "--intensity-max", "--adaptive-threshold", "--adaptive-max-ratio"};
+}
+
+std::set<std::string> map_flag_options() { return {"--no-rays", "--no-adaptive"}; }
+
+std::string map_options_help() {
+  const IwloParams d;
+  const auto num = [](double v) {
+    std::string s = std::to_string(v);
+    s.erase(s.find_last_not_of('0') + 1);
+    if (!s.empty() && s.back() == '.') s.pop_back();
+    return s;
+  };
+  return std::string(R"(
+map:
+  --resolution M            voxel edge in metres (default 0.05)
+  --backend ram|disk|octomap  map storage (default ram)
+  --tiles DIR               map directory of the disk backend
+  --max-range M             clip rays longer than M metres; those points give no hit (default: none)
+  --no-rays                 no ray casting: every point is one observation, occupied iff its
+                            intensity exceeds the threshold (sonar pipelines)
+  --sensor sonar|lidar      preset: sonar keeps the defaults (an echo at or below the intensity
+                            threshold is free space); lidar sets --intensity-threshold 0, so every
+                            return is a hit weighted by its intensity. Options below override it.
+  --threshold P             output voxels with occupancy probability > P (default )") + num(d.occupied_threshold) + R"()
+
+IWLO parameters (defaults in brackets):
+  --sharpness S [)" + num(d.sharpness) + R"(]   --decay-rate D [)" + num(d.decay_rate) + R"(]   --min-alpha A [)" + num(d.min_alpha) + R"(]
+  --l-min L [)" + num(d.L_min) + R"(]   --l-max L [)" + num(d.L_max) + R"(]   --l-occ L [)" + num(d.log_odds_occupied) + R"(]   --l-free L [)" + num(d.log_odds_free) + R"(]
+  --intensity-threshold I [)" + num(d.intensity_threshold) + R"(]   --intensity-max I [)" + num(d.intensity_max) + R"(]
+  --no-adaptive   --adaptive-threshold P [)" + num(d.adaptive_threshold) + R"(]   --adaptive-max-ratio R [)" + num(d.adaptive_max_ratio) + R"(]
+)";
+}
+
+MapSetup map_setup_from(const Args& args) {
+  MapSetup s;
+  const std::string sensor = args.value("--sensor").value_or("sonar");
+  if (sensor == "lidar")
+    s.params.intensity_threshold = 0.0;
+  else if (sensor != "sonar")
+    throw UsageError("--sensor must be sonar or lidar, got '" + sensor + "'");
+  IwloParams& p = s.params;
+  p.sharpness = args.number("--sharpness", p.sharpness);
+  p.decay_rate = args.number("--decay-rate", p.decay_rate);
+  p.min_alpha = args.number("--min-alpha", p.min_alpha);
+  p.L_min = args.number("--l-min", p.L_min);
+  p.L_max = args.number("--l-max", p.L_max);
+  p.log_odds_occupied = args.number("--l-occ", p.log_odds_occupied);
+  p.log_odds_free = args.number("--l-free", p.log_odds_free);
+  p.intensity_threshold = args.number("--intensity-threshold", p.intensity_threshold);
+  p.intensity_max = args.number("--intensity-max", p.intensity_max);
+  p.adaptive_enabled = !args.flag("--no-adaptive");
+  p.adaptive_threshold = args.number("--adaptive-threshold", p.adaptive_threshold);
+  p.adaptive_max_ratio = args.number("--adaptive-max-ratio", p.adaptive_max_ratio);
+  p.occupied_threshold = args.number("--threshold", p.occupied_threshold);
+  try {
+    p.validate();
+  } catch (const std::invalid_argument& e) {
+    throw UsageError(e.what());
+  }
+
+  const double resolution = args.number("--resolution", 0.05);
+  if (!(resolution > 0.0)) throw UsageError("--resolution must be > 0");
+  s.max_range = args.number("--max-range", -1.0);
+  s.ray_casting = !args.flag("--no-rays");
+
+  std::string backend = args.value("--backend").value_or("ram");
+  std::transform(backend.begin(), backend.end(), backend.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  BackendOptions options;
+  if (backend == "disk") {
+    const auto tiles = args.value("--tiles");
+    if (!tiles) throw UsageError("--backend disk needs --tiles DIR");
+    options.directory = *tiles;
+  } else if (args.has("--tiles")) {
+    throw UsageError("--tiles is only for --backend disk");
+  } else if (backend != "ram" && backend != "octomap") {
+    throw UsageError("--backend must be ram, disk or octomap, got '" + backend + "'");
+  }
+  s.map = make_backend(backend, resolution, options);
+  s.map->set_params(p);
+  return s;
+}
+
+}  // namespace iwlomap::tool

@@ -1,0 +1,32 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+// The map options shared by the tool's commands that build a map: backend, resolution, sensor
+// preset and IWLO parameters.
+
+#include "args.h"
+
+#include <iwlomap/iwlo.h>
+#include <iwlomap/mapper_backend.h>
+
+#include <memory>
+#include <set>
+#include <string>
+
+namespace iwlomap::tool {
+
+struct MapSetup {
+  std::shared_ptr<IMapperBackend> map;
+  IwloParams params;
+  bool ray_casting = true;
+  double max_range = -1.0;
+};
+
+[[nodiscard]] std::set<std::string> map_value_options();
+[[nodiscard]] std::set<std::string> map_flag_options();
+[[nodiscard]] std::string map_options_help();
+
+/// Builds the backend and parameters the options ask for (preset first, explicit options over it).
+[[nodiscard]] MapSetup map_setup_from(const Args& args);
+
+}  // namespace iwlomap::tool
