@@ -9,6 +9,7 @@
 #include <pcl/io/ply_io.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <fstream>
 #include <stdexcept>
 
@@ -18,6 +19,19 @@ namespace {
 bool has_field(const pcl::PCLPointCloud2& c, const std::string& name) {
   return std::any_of(c.fields.begin(), c.fields.end(), [&](const pcl::PCLPointField& f) { return f.name == name; });
 }
+void write_empty(const std::string& path, const std::string& ext) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  if (!out) throw std::runtime_error("cannot write '" + path + "'");
+  if (ext == ".pcd")
+    out << "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\n"
+           "TYPE F F F F\nCOUNT 1 1 1 1\nWIDTH 0\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA ascii\n";
+  else if (ext == ".ply")
+    out << "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\n"
+           "property float intensity\nend_header\n";
+  out.close();
+  if (!out) throw std::runtime_error("cannot write '" + path + "'");
+}
+
 }  // namespace
 
 LoadedCloud load_cloud(const std::string& path, float missing_intensity) {
@@ -29,7 +43,15 @@ LoadedCloud load_cloud(const std::string& path, float missing_intensity) {
   int rc = -1;
   int version = 0;
   if (ext == ".pcd") {
-    rc = pcl::PCDReader().read(path, blob, origin, orientation, version);
+    // PCL 1.13's PCDReader::read crashes on a file without a valid header, so check it first.
+    pcl::PCDReader reader;
+    int data_type = 0;
+    unsigned int data_idx = 0;
+    pcl::PCLPointCloud2 header;
+    if (reader.readHeader(path, header, origin, orientation, version, data_type, data_idx) < 0 ||
+        header.fields.empty())
+      throw std::runtime_error("'" + path + "': not a PCD file (no valid header)");
+    rc = header.width * header.height == 0 ? (blob = header, 0) : reader.read(path, blob, origin, orientation, version);
   } else if (ext == ".ply") {
     rc = pcl::PLYReader().read(path, blob, origin, orientation, version);
   } else {
@@ -51,15 +73,24 @@ LoadedCloud load_cloud(const std::string& path, float missing_intensity) {
 
 void save_cloud(const std::string& path, const pcl::PointCloud<pcl::PointXYZI>& cloud) {
   const std::string ext = extension(path);
-  int rc = -1;
-  if (ext == ".pcd") {
-    rc = cloud.empty() ? pcl::PCDWriter().writeASCII(path, cloud) : pcl::io::savePCDFileBinary(path, cloud);
-  } else if (ext == ".ply") {
-    rc = pcl::io::savePLYFileBinary(path, cloud);
-  } else {
+  if (ext != ".pcd" && ext != ".ply")
     throw std::runtime_error("'" + path + "': unsupported output format (use .pcd or .ply)");
+  // Written beside the target and renamed over it, so a failed write never leaves a torn file.
+  const std::string partial = path + ".partial";
+  if (cloud.empty()) {
+    // PCL's writers refuse a cloud without points; an empty map is still a valid result.
+    write_empty(partial, ext);
+  } else {
+    const int rc = ext == ".pcd" ? pcl::io::savePCDFileBinary(partial, cloud) : pcl::io::savePLYFileBinary(partial, cloud);
+    if (rc < 0) {
+      std::remove(partial.c_str());
+      throw std::runtime_error("cannot write '" + path + "'");
+    }
   }
-  if (rc < 0) throw std::runtime_error("cannot write '" + path + "'");
+  if (std::rename(partial.c_str(), path.c_str()) != 0) {
+    std::remove(partial.c_str());
+    throw std::runtime_error("cannot write '" + path + "'");
+  }
 }
 
 }  // namespace iwlomap::tool

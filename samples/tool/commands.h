@@ -12,5 +12,6 @@ namespace iwlomap::tool {
 int run_map(const std::vector<std::string>& args);
 int run_info(const std::vector<std::string>& args);
 int run_generate(const std::vector<std::string>& args);
+int run_render(const std::vector<std::string>& args);
 
 }  // namespace iwlomap::tool

@@ -6,6 +6,8 @@
 #include "cloud_io.h"
 #include "commands.h"
 
+#include <pcl/console/print.h>
+
 #include <iostream>
 #include <string>
 #include <vector>
@@ -20,6 +22,7 @@ commands:
   map        integrate .pcd/.ply clouds into one map, write the occupied voxels
   info       describe a .pcd or .ply file
   generate   write a synthetic lidar scan (.pcd) to try the tool on
+  render     draw a voxel map (.pcd/.ply) into a PNG image, off screen
 
 Run 'iwlomap <command> --help' for the options of a command.
 )";
@@ -28,6 +31,8 @@ Run 'iwlomap <command> --help' for the options of a command.
 
 int main(int argc, char** argv) {
   using namespace iwlomap::tool;
+  // The tool reports problems in its own words; PCL's warnings would only repeat them.
+  pcl::console::setVerbosityLevel(pcl::console::L_ERROR);
   const std::vector<std::string> args(argv + 1, argv + argc);
   if (args.empty()) {
     std::cerr << kUsage;
@@ -43,6 +48,7 @@ int main(int argc, char** argv) {
     if (command == "map") return run_map(rest);
     if (command == "info") return run_info(rest);
     if (command == "generate") return run_generate(rest);
+    if (command == "render") return run_render(rest);
     throw UsageError("unknown command '" + command + "'");
   } catch (const UsageError& e) {
     std::cerr << "iwlomap " << (command.rfind('-', 0) == 0 ? std::string() : command + " ") << "usage error: " << e.what()

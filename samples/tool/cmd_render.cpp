@@ -1,0 +1,249 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// `iwlomap render`: a PNG snapshot of a voxel map, drawn off screen.
+
+#include "args.h"
+#include "commands.h"
+
+#include <iostream>
+#include <stdexcept>
+
+#ifdef IWLOMAP_HAVE_VIEWER
+#include "cloud_io.h"
+
+#include <iwlomap/viewer/pcl_adapter.h>
+#include <iwlomap/viewer/snapshot_renderer.h>
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <optional>
+#include <sstream>
+#include <vector>
+#endif
+
+namespace iwlomap::tool {
+
+namespace {
+
+const char* kHelp = R"(usage: iwlomap render IN.pcd|IN.ply -o OUT.png [options]
+
+Draws a voxel map into a PNG image, off screen: the points of IN are voxel centres (what
+'iwlomap map' writes), their intensity the occupancy probability. Only .pcd and .ply input for
+now (.bt files and disk-backend tile directories will follow with those backends).
+
+Rendering needs an X display. On a machine without a screen run the command under a virtual one:
+  xvfb-run -a -s "-screen 0 1280x1024x24 -noreset" iwlomap render ...
+
+output:
+  -o, --output FILE           the PNG image to write
+  --width N, --height N       image size in pixels (default 1280 x 960)
+  --title TEXT                a title at the top of the image
+
+camera (parallel projection framing the whole map unless --perspective):
+  --camera iso|top|front|side   iso: from above at 42 deg, looking from the +x/-y side (default);
+                              top: plan view, +y up; front: from -y; side: from +x
+  --eye X,Y,Z --target X,Y,Z  explicit camera in metres (replaces --camera; both needed)
+  --up X,Y,Z                  up direction of the explicit camera (default 0,0,1)
+  --perspective               a 30 degree perspective camera instead of a parallel one
+
+voxels:
+  --color probability|height|fixed   colour by occupancy probability, by height or one colour
+                              (default height)
+  --color-range MIN,MAX       the values spread over the colour map (default: probability
+                              0.5,1; height: the map's z range)
+  --fixed-color COLOR         the colour of --color fixed
+  --no-color-bar              no colour bar
+  --points                    draw points instead of cubes (faster for huge maps)
+  --point-size PX             size of --points in pixels (default 3)
+  --resolution M              voxel edge in metres (default: inferred from the voxel centres)
+  --background COLOR          background colour (default #1c1f24)
+  --no-lighting               flat colours, exactly as the colour map gives them
+
+COLOR is #rrggbb or R,G,B with components in [0, 1].
+)";
+
+#ifdef IWLOMAP_HAVE_VIEWER
+
+double parse_number(const std::string& option, const std::string& text) {
+  char* end = nullptr;
+  const double d = std::strtod(text.c_str(), &end);
+  if (text.empty() || end != text.c_str() + text.size() || !std::isfinite(d))
+    throw UsageError(option + " needs finite numbers, got '" + text + "'");
+  return d;
+}
+
+std::vector<double> parse_list(const std::string& option, const std::string& text, std::size_t count) {
+  std::vector<double> out;
+  std::stringstream ss(text);
+  for (std::string item; std::getline(ss, item, ',');) out.push_back(parse_number(option, item));
+  if (out.size() != count || (!text.empty() && text.back() == ','))
+    throw UsageError(option + " needs " + std::to_string(count) + " comma-separated numbers, got '" + text + "'");
+  return out;
+}
+
+Eigen::Vector3d parse_vector(const std::string& option, const std::string& text) {
+  const auto v = parse_list(option, text, 3);
+  return {v[0], v[1], v[2]};
+}
+
+viewer::Rgb parse_color(const std::string& option, const std::string& text) {
+  if (text.size() == 7 && text[0] == '#') {
+    const auto hex = [&](std::size_t at) {
+      const std::string byte = text.substr(at, 2);
+      char* end = nullptr;
+      const long v = std::strtol(byte.c_str(), &end, 16);
+      if (end != byte.c_str() + 2) throw UsageError(option + " needs #rrggbb or R,G,B, got '" + text + "'");
+      return static_cast<double>(v) / 255.0;
+    };
+    return {hex(1), hex(3), hex(5)};
+  }
+  const auto v = parse_list(option, text, 3);
+  for (double c : v)
+    if (c < 0.0 || c > 1.0) throw UsageError(option + " components must be in [0, 1], got '" + text + "'");
+  return {v[0], v[1], v[2]};
+}
+
+/// The voxel edge of a grid of voxel centres: the smallest gap between distinct centre coordinates
+/// along any axis (centres of neighbouring voxels differ by exactly one edge). The tolerance
+/// absorbs the float rounding of PCD files.
+std::optional<double> infer_resolution(const Eigen::MatrixXd& v) {
+  std::optional<double> best;
+  for (int axis = 0; axis < 3; ++axis) {
+    std::vector<double> c;
+    c.reserve(static_cast<std::size_t>(v.rows()));
+    for (Eigen::Index i = 0; i < v.rows(); ++i)
+      if (std::isfinite(v(i, axis))) c.push_back(v(i, axis));
+    std::sort(c.begin(), c.end());
+    for (std::size_t i = 1; i < c.size(); ++i) {
+      const double gap = c[i] - c[i - 1];
+      const double tol = 1e-5 * std::max({1.0, std::abs(c[i]), std::abs(c[i - 1])});
+      if (gap > tol && (!best || gap < *best)) best = gap;
+    }
+  }
+  // Round away the float noise (to 4 significant digits): 0.0999999 -> 0.1.
+  if (best) {
+    const double scale = std::pow(10.0, 3 - std::floor(std::log10(*best)));
+    best = std::round(*best * scale) / scale;
+  }
+  return best;
+}
+
+viewer::SnapshotOptions options_from(const Args& args) {
+  viewer::SnapshotOptions o;
+  o.width = static_cast<int>(args.integer("--width", o.width));
+  o.height = static_cast<int>(args.integer("--height", o.height));
+  o.title = args.value("--title").value_or("");
+
+  const std::string camera = args.value("--camera").value_or("iso");
+  if (camera == "iso")
+    o.camera = viewer::CameraPreset::kIso;
+  else if (camera == "top")
+    o.camera = viewer::CameraPreset::kTop;
+  else if (camera == "front")
+    o.camera = viewer::CameraPreset::kFront;
+  else if (camera == "side")
+    o.camera = viewer::CameraPreset::kSide;
+  else
+    throw UsageError("--camera must be iso, top, front or side, got '" + camera + "'");
+  const auto eye = args.value("--eye"), target = args.value("--target"), up = args.value("--up");
+  if (eye || target || up) {
+    if (!eye || !target) throw UsageError("an explicit camera needs both --eye and --target");
+    if (args.has("--camera")) throw UsageError("--camera and --eye/--target exclude each other");
+    viewer::CameraPose pose;
+    pose.eye = parse_vector("--eye", *eye);
+    pose.target = parse_vector("--target", *target);
+    pose.up = up ? parse_vector("--up", *up) : Eigen::Vector3d::UnitZ();
+    o.camera_pose = pose;
+  }
+  o.perspective = args.flag("--perspective");
+
+  const std::string color = args.value("--color").value_or("height");
+  if (color == "probability")
+    o.color_by = viewer::ColorBy::kProbability;
+  else if (color == "height")
+    o.color_by = viewer::ColorBy::kHeight;
+  else if (color == "fixed")
+    o.color_by = viewer::ColorBy::kFixed;
+  else
+    throw UsageError("--color must be probability, height or fixed, got '" + color + "'");
+  if (const auto range = args.value("--color-range")) {
+    const auto r = parse_list("--color-range", *range, 2);
+    o.color_min = r[0];
+    o.color_max = r[1];
+  }
+  if (const auto c = args.value("--fixed-color")) o.fixed_color = parse_color("--fixed-color", *c);
+  if (const auto c = args.value("--background")) o.background = parse_color("--background", *c);
+  o.color_bar = !args.flag("--no-color-bar");
+  o.shape = args.flag("--points") ? viewer::VoxelShape::kPoints : viewer::VoxelShape::kCubes;
+  o.point_size = args.number("--point-size", o.point_size);
+  o.lighting = !args.flag("--no-lighting");
+  try {
+    o.validate();
+  } catch (const std::invalid_argument& e) {
+    throw UsageError(e.what());
+  }
+  return o;
+}
+
+#endif  // IWLOMAP_HAVE_VIEWER
+
+}  // namespace
+
+int run_render(const std::vector<std::string>& argv) {
+  const Args args(argv,
+                  {"-o", "--output", "--width", "--height", "--title", "--camera", "--eye", "--target", "--up",
+                   "--color", "--color-range", "--fixed-color", "--point-size", "--resolution", "--background"},
+                  {"-h", "--help", "--perspective", "--no-color-bar", "--points", "--no-lighting"});
+  if (args.flag("-h") || args.flag("--help")) {
+    std::cout << kHelp;
+    return 0;
+  }
+#ifndef IWLOMAP_HAVE_VIEWER
+  throw std::runtime_error(
+      "this iwlomap was built without the snapshot renderer: install libvtk9-dev and reconfigure with "
+      "-DIWLOMAP_WITH_VIEWER=ON");
+#else
+  if (args.positional().empty()) throw UsageError("no input file");
+  if (args.positional().size() > 1) throw UsageError("one input file only, got also '" + args.positional()[1] + "'");
+  const std::string input = args.positional().front();
+  const std::string in_ext = extension(input);
+  if (in_ext != ".pcd" && in_ext != ".ply")
+    throw UsageError("the input must be a .pcd or .ply cloud of voxel centres, got '" + input + "'");
+  const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
+  if (!output) throw UsageError("no output file (-o OUT.png)");
+  if (extension(*output) != ".png") throw UsageError("the output must end in .png, got '" + *output + "'");
+  const viewer::SnapshotOptions options = options_from(args);
+  const auto resolution_option = args.number("--resolution");
+  if (resolution_option && !(*resolution_option > 0.0))
+    throw UsageError("--resolution must be > 0, got " + std::to_string(*resolution_option));
+
+  // Fail before reading a large file when the picture cannot be drawn anyway.
+  viewer::SnapshotRenderer::check_display();
+
+  const auto started = std::chrono::steady_clock::now();
+  const LoadedCloud in = load_cloud(input, 1.0f);
+  const Eigen::MatrixXd voxels = viewer::cloud_to_voxels(*in.cloud);
+  double resolution = 0.0;
+  if (resolution_option) {
+    resolution = *resolution_option;
+  } else if (const auto inferred = infer_resolution(voxels)) {
+    resolution = *inferred;
+  } else {
+    throw UsageError("cannot infer the voxel size of '" + input + "' (fewer than two distinct voxels): give --resolution");
+  }
+  if (options.color_by == viewer::ColorBy::kProbability && voxels.rows() > 0 &&
+      (voxels.col(3).minCoeff() < 0.0 || voxels.col(3).maxCoeff() > 1.0))
+    std::cerr << "iwlomap render: note: intensities of '" << input
+              << "' are not all in [0, 1], so they are not occupancy probabilities; colours are clamped\n";
+  viewer::SnapshotRenderer::render_png(voxels, resolution, options, *output);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+  std::cout << "wrote " << *output << ": " << voxels.rows() << " voxels of " << resolution << " m"
+            << (resolution_option ? "" : " (inferred)") << ", " << options.width << " x " << options.height << " in "
+            << seconds << " s\n";
+  return 0;
+#endif
+}
+
+}  // namespace iwlomap::tool

@@ -1,0 +1,88 @@
+#!/usr/bin/env bash
+# SPDX-License-Identifier: BSD-3-Clause
+# End-to-end checks of the iwlomap command-line tool: exit codes, error lines, --help, and that
+# its outputs open in PCL's own tools.
+# usage: test_tool.sh IWLOMAP_BINARY WORK_DIR
+set -u
+TOOL=$1
+WORK=$2
+rm -rf "$WORK" && mkdir -p "$WORK"
+passed=0
+failed=0
+check() {  # check NAME EXPECTED_RC COMMAND...
+  local name=$1 expected=$2
+  shift 2
+  "$@" >"$WORK/$name.out" 2>"$WORK/$name.err"
+  local rc=$?
+  if [ "$rc" = "$expected" ]; then
+    passed=$((passed + 1))
+  else
+    failed=$((failed + 1))
+    echo "FAIL $name: exit $rc, expected $expected"
+    sed 's/^/  stderr: /' "$WORK/$name.err" | head -5
+  fi
+}
+expect() {  # expect NAME CONDITION-COMMAND...
+  local name=$1
+  shift
+  if "$@"; then passed=$((passed + 1)); else failed=$((failed + 1)); echo "FAIL $name"; fi
+}
+one_line() { [ "$(wc -l <"$WORK/$1.err")" -eq 1 ]; }
+
+check help 0 "$TOOL" --help
+expect help_lists_map grep -q "map" "$WORK/help.out"
+check no_command 2 "$TOOL"
+check unknown_command 2 "$TOOL" frobnicate
+expect unknown_command_one_line one_line unknown_command
+for cmd in map info generate; do
+  check "help_$cmd" 0 "$TOOL" "$cmd" --help
+  expect "help_${cmd}_usage" grep -q "usage: iwlomap $cmd" "$WORK/help_$cmd.out"
+done
+expect map_help_lists_every_option bash -c "for o in --resolution --backend --tiles --max-range --no-rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
+
+check generate 0 "$TOOL" generate -o "$WORK/scan.pcd" --rings 16 --columns 256
+check info 0 "$TOOL" info "$WORK/scan.pcd"
+expect info_counts grep -q "4096 points" "$WORK/info.out"
+expect info_origin grep -q "sensor origin (m): (0, 0, 1.5)" "$WORK/info.out"
+
+check map_pcd 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar -o "$WORK/occupied.pcd"
+expect map_summary grep -q "occupied (p > 0.7)" "$WORK/map_pcd.out"
+expect map_output_exists test -s "$WORK/occupied.pcd"
+check pcl_pcd2ply_opens_output 0 pcl_pcd2ply "$WORK/occupied.pcd" "$WORK/occupied_from_pcl.ply"
+expect pcl_ply_nonempty test -s "$WORK/occupied_from_pcl.ply"
+n_pcd=$(grep -a -m1 '^POINTS' "$WORK/occupied.pcd" | awk '{print $2}')
+expect map_found_occupied_voxels test "${n_pcd:-0}" -gt 100
+
+# The same scan as .ply gives the same map.
+check pcl_pcd2ply_scan 0 pcl_pcd2ply "$WORK/scan.pcd" "$WORK/scan.ply"
+check map_ply 0 "$TOOL" map "$WORK/scan.ply" --resolution 0.2 --sensor lidar -o "$WORK/occupied2.ply"
+n_ply=$(grep -a -m1 '^element vertex' "$WORK/occupied2.ply" | awk '{print $3}')
+expect ply_input_same_count test "$n_ply" = "$n_pcd"
+
+# An empty input gives an empty but valid output that the tools read back.
+printf '# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 0\nHEIGHT 1\nPOINTS 0\nDATA ascii\n' >"$WORK/empty.pcd"
+check map_empty 0 "$TOOL" map "$WORK/empty.pcd" -o "$WORK/empty_out.pcd"
+check info_empty_output 0 "$TOOL" info "$WORK/empty_out.pcd"
+expect empty_output_has_no_points grep -q ": cloud, 0 points" "$WORK/info_empty_output.out"
+expect no_partial_left test ! -e "$WORK/empty_out.pcd.partial"
+
+# Errors: bad usage exits 2, failures exit 1, each with one line on stderr.
+check missing_input 1 "$TOOL" map "$WORK/does_not_exist.pcd" -o "$WORK/x.pcd"
+expect missing_input_one_line one_line missing_input
+expect missing_input_names_file grep -q "does_not_exist.pcd" "$WORK/missing_input.err"
+check no_input 2 "$TOOL" map -o "$WORK/x.pcd"
+check bad_number 2 "$TOOL" map "$WORK/scan.pcd" --resolution abc
+expect bad_number_one_line one_line bad_number
+check bad_option 2 "$TOOL" map "$WORK/scan.pcd" --frobnicate
+check bad_param 2 "$TOOL" map "$WORK/scan.pcd" --min-alpha 0
+expect bad_param_names_value grep -q "min_alpha" "$WORK/bad_param.err"
+check bad_sensor 2 "$TOOL" map "$WORK/scan.pcd" --sensor radar
+check bad_output_ext 2 "$TOOL" map "$WORK/scan.pcd" -o "$WORK/out.txt"
+check disk_without_tiles 2 "$TOOL" map "$WORK/scan.pcd" --backend disk
+check garbage_input 1 bash -c "echo garbage > '$WORK/garbage.pcd' && '$TOOL' map '$WORK/garbage.pcd'"
+check unwritable_output 1 "$TOOL" map "$WORK/scan.pcd" --resolution 0.5 -o "/nonexistent-dir/x.pcd"
+expect no_output_written test ! -e "$WORK/x.pcd"
+
+echo "tool: $passed passed, $failed failed"
+echo "$passed passed, $failed failed"
+[ "$failed" -eq 0 ]
