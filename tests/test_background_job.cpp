@@ -133,6 +133,9 @@ TEST(BackgroundJob, TerminateWhileAJobRunsFinishesItAndDiscardsTheQueue) {
   started.wait();
   job.submit(1);
   job.submit(2);
+  job.cancel();  // discards 1 and 2 at once, does not wait
+  EXPECT_TRUE(job.is_running());
+  EXPECT_THROW(job.submit(3), std::logic_error);
   std::thread stopper([&] { job.terminate(); });  // waits for job 0
   gate.open->set_value();
   stopper.join();
@@ -144,6 +147,7 @@ TEST(BackgroundJob, TerminateWhileAJobRunsFinishesItAndDiscardsTheQueue) {
 
 TEST(BackgroundJob, DestructionWithQueuedJobsJoinsWithoutRunningThem) {
   auto counter = std::make_shared<std::atomic<int>>(0);
+  std::thread opener;
   Gate gate;
   auto started = gate.started->get_future();
   {
@@ -160,11 +164,16 @@ TEST(BackgroundJob, DestructionWithQueuedJobsJoinsWithoutRunningThem) {
     job.submit(0);
     started.wait();
     for (int i = 1; i < 10; ++i) job.submit(i);
-    std::thread opener([&] { gate.open->set_value(); });
-    opener.join();
-  }  // destructor: discards 1..9 unless already taken, lets the running job finish, joins
-  EXPECT_GE(counter->load(), 1);
-  EXPECT_LE(counter->load(), 10);
+    EXPECT_EQ(job.queued(), 9u);
+    // Opens the gate once the destructor has discarded the queue (job 0 holds the worker, so
+    // nothing else can empty it).
+    opener = std::thread([&job, &gate] {
+      while (job.queued() != 0) std::this_thread::yield();
+      gate.open->set_value();
+    });
+  }  // destructor: discards 1..9, lets job 0 finish, joins
+  opener.join();
+  EXPECT_EQ(counter->load(), 1);
 }
 
 TEST(BackgroundJob, RejectsBadConstructionArguments) {

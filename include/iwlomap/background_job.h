@@ -116,9 +116,9 @@ class BackgroundJob {
     return fn(context_);
   }
 
-  /// Discards queued jobs, waits for a running job to finish and stops the worker. Finished
-  /// outputs (and a pending exception) stay available to wait(). Idempotent.
-  void terminate() {
+  /// Discards queued jobs and refuses new ones without waiting: a running job goes on to its end.
+  /// For a sensor loop that must not block; terminate() also waits. Idempotent.
+  void cancel() {
     {
       std::lock_guard<std::mutex> lock(mutex_);
       terminated_ = true;
@@ -126,14 +126,25 @@ class BackgroundJob {
     }
     work_ready_.notify_all();
     space_.notify_all();
-    if (worker_.joinable()) worker_.join();
     idle_.notify_all();
+  }
+
+  /// cancel(), then waits for a running job to finish and stops the worker. Finished outputs (and
+  /// a pending exception) stay available to wait(). Idempotent.
+  void terminate() {
+    cancel();
+    if (worker_.joinable()) worker_.join();
   }
 
   /// True while a job is queued or running.
   [[nodiscard]] bool is_running() const {
     std::lock_guard<std::mutex> lock(mutex_);
     return !queue_.empty() || in_flight_ > 0;
+  }
+  /// Jobs waiting in the queue (not yet started).
+  [[nodiscard]] std::size_t queued() const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return queue_.size();
   }
   /// Jobs discarded by QueueFullPolicy::kDropOldest so far.
   [[nodiscard]] std::size_t dropped() const {
