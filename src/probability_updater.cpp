@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "iwlomap/probability_updater.h"
 
+#include "detail/absolute_log_odds.h"
 #include "detail/batch_input.h"
 #include "detail/block_grid.h"
 #include "detail/param_setters.h"
@@ -118,6 +119,24 @@ void ProbabilityUpdater::set_occupied_threshold(double threshold) {
 }
 void ProbabilityUpdater::set_params(const IwloParams& params) { impl().set(params); }
 IwloParams ProbabilityUpdater::get_params() const { return impl().updater.params(); }
+
+void ProbabilityUpdater::set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) {
+  Impl& m = impl();
+  std::vector<detail::AbsoluteLogOdds> values;
+  const std::size_t skip = detail::prepare_log_odds(points, log_odds, m.updater.params(), m.resolution, values);
+  detail::BlockAccessor acc(m.grid);
+  for (const detail::AbsoluteLogOdds& a : values) {
+    detail::VoxelBlock& b = acc.block(detail::block_of(a.key));
+    detail::Voxel& v = b.voxels[static_cast<std::size_t>(detail::index_in_block(a.key))];
+    if (v.count == 0) {
+      ++b.known;
+      ++m.known;
+      v.count = 1;
+    }
+    v.log_odds = a.log_odds;
+  }
+  m.skipped += skip;
+}
 
 Eigen::MatrixXd ProbabilityUpdater::get_occupied_voxels(double min_probability) {
   const double threshold = detail::resolve_min_probability(min_probability);

@@ -23,6 +23,7 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -126,7 +127,26 @@ class IMapperBackend {
   /// All IWLO parameters at once (validated; throws std::invalid_argument without changing anything).
   virtual void set_params(const IwloParams& params) = 0;
   [[nodiscard]] virtual IwloParams get_params() const = 0;
+
+  /// Sets absolute log-odds, which is not an observation: importing a map from a file
+  /// (import_octomap() of the OctoMap layer) must restore log-odds exactly, and no sequence of IWLO
+  /// updates can do that. The voxel containing points.row(i) gets log_odds[i] clamped to
+  /// [L_min, L_max] (stored as float, like every update), and its observation count becomes
+  /// max(count, 1), so the voxel is known afterwards. Rows are applied in order (the last of
+  /// several rows in one voxel wins). A row whose point or value is not finite is skipped and
+  /// counted (get_num_skipped_points()).
+  /// Throws, before changing anything: std::invalid_argument when points is not N x 3 or log_odds
+  /// does not have N entries; std::out_of_range when a point lies outside the backend's key range.
+  /// The default throws std::logic_error naming the backend: a backend without it cannot be the
+  /// target of an import.
+  virtual void set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds);
 };
+
+inline void IMapperBackend::set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) {
+  (void)points;
+  (void)log_odds;
+  throw std::logic_error("iwlomap: the " + get_backend_type() + " backend does not implement set_log_odds()");
+}
 
 /// Options of make_backend() that only some backends use.
 struct BackendOptions {

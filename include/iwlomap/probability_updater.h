@@ -42,6 +42,7 @@ class ProbabilityUpdater final : public IMapperBackend {
   void set_occupied_threshold(double threshold) override;
   void set_params(const IwloParams& params) override;
   [[nodiscard]] IwloParams get_params() const override;
+  void set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) override;
 
   [[nodiscard]] Eigen::MatrixXd get_occupied_voxels(double min_probability = 0.5) override;
   [[nodiscard]] std::optional<VoxelState> query(const Eigen::Vector3d& point) const override;
