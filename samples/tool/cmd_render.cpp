@@ -42,7 +42,7 @@ output:
   --title TEXT                a title at the top of the image
 
 camera (parallel projection framing the whole map unless --perspective):
-  --camera iso|top|front|side   iso: from above at 42 deg, looking from the +x/-y side (default);
+  --camera iso|top|front|side   iso: from the +x/-y side, 50 deg above the horizon (default);
                               top: plan view, +y up; front: from -y; side: from +x
   --eye X,Y,Z --target X,Y,Z  explicit camera in metres (replaces --camera; both needed)
   --up X,Y,Z                  up direction of the explicit camera (default 0,0,1)
@@ -58,7 +58,7 @@ voxels:
   --points                    draw points instead of cubes (faster for huge maps)
   --point-size PX             size of --points in pixels (default 3)
   --resolution M              voxel edge in metres (default: inferred from the voxel centres)
-  --background COLOR          background colour (default #1c1f24)
+  --background COLOR          background colour (default #f2f3f5)
   --no-lighting               flat colours, exactly as the colour map gives them
 
 COLOR is #rrggbb or R,G,B with components in [0, 1].
