@@ -1,0 +1,443 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// The IWLO update math against values worked out by hand (DESIGN.md section 3). Every expected
+// number below is derived in the comment next to it from the formulas of the design, never by
+// calling the library's own functions.
+
+#include "iwlomap/iwlo.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdint>
+#include <functional>
+#include <limits>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace iwlomap {
+namespace {
+
+constexpr double kTol = 1e-12;
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// ---- intensity weight ------------------------------------------------------------------------
+
+TEST(IwloIntensityWeight, ZeroWhenIntensityAtOrBelowThreshold) {
+  const IwloParams p;  // I_th = 35
+  EXPECT_EQ(iwlo::intensity_weight(35.0, p), 0.0);
+  EXPECT_EQ(iwlo::intensity_weight(34.999, p), 0.0);
+  EXPECT_EQ(iwlo::intensity_weight(0.0, p), 0.0);
+  EXPECT_EQ(iwlo::intensity_weight(-5.0, p), 0.0);
+  // Just above the threshold: u ~ 0, w = 1 / (1 + exp(0.1 * 0.5)) ~ 0.4875 > 0.
+  EXPECT_GT(iwlo::intensity_weight(35.001, p), 0.48);
+}
+
+TEST(IwloIsOccupiedObservation, FreeWhenIntensityAtOrBelowThresholdOrFlagUnset) {
+  const IwloParams p;  // I_th = 35
+  EXPECT_FALSE(iwlo::is_occupied_observation(true, 35.0, p));
+  EXPECT_FALSE(iwlo::is_occupied_observation(true, 10.0, p));
+  EXPECT_FALSE(iwlo::is_occupied_observation(false, 200.0, p));
+  EXPECT_TRUE(iwlo::is_occupied_observation(true, 35.5, p));
+}
+
+TEST(IwloStep, FreeObservationWhenFlagSetButIntensityAtThreshold) {
+  const IwloParams p;
+  // L = 0 -> P = 0.5; free branch: P > 1 - P_th = 0.5 is false -> s = 1; n = 1 -> alpha = 1.
+  // dL = L_free * alpha * s = -3.0 (the occupied flag is ignored because I = I_th gives w = 0).
+  EXPECT_NEAR(iwlo::delta(0.0, 1, 35.0, true, 1.0, p), -3.0, kTol);
+  EXPECT_NEAR(iwlo::step(0.0, 1, 35.0, true, 1.0, p), -3.0, kTol);
+  EXPECT_NEAR(iwlo::step(0.0, 1, 12.0, true, 1.0, p), -3.0, kTol);
+}
+
+TEST(IwloIntensityWeight, FullWeightWhenIntensitySpanBelowGuard) {
+  IwloParams p;
+  p.sharpness = 2.0;
+  p.intensity_threshold = 100.0;
+  // u = 1 by the guard: w = 1 / (1 + exp(-2 * (1 - 0.5))) = 1 / (1 + e^-1) = 0.7310585786300049.
+  p.intensity_max = 100.0;  // span 0
+  EXPECT_NEAR(iwlo::intensity_weight(150.0, p), 0.7310585786300049, kTol);
+  p.intensity_max = 100.0 + 1e-10;  // span 1e-10 <= 1e-9
+  EXPECT_NEAR(iwlo::intensity_weight(150.0, p), 0.7310585786300049, kTol);
+  // Negative span: without the guard u = clamp(50 / -50, 0, 1) = 0 would give
+  // 1 / (1 + e^1) = 0.2689; the guard makes it u = 1.
+  p.intensity_max = 50.0;
+  EXPECT_NEAR(iwlo::intensity_weight(150.0, p), 0.7310585786300049, kTol);
+  // The guard never turns an intensity at or below I_th into a positive weight.
+  EXPECT_EQ(iwlo::intensity_weight(100.0, p), 0.0);
+  EXPECT_EQ(iwlo::intensity_weight(80.0, p), 0.0);
+}
+
+TEST(IwloIntensityWeight, ClampedWhenIntensityAboveMax) {
+  IwloParams p;  // sharpness 0.1, I_th 35, I_max 255
+  // u = clamp((I - 35) / 220, 0, 1) = 1 for I >= 255: w = 1 / (1 + exp(-0.05)) = 0.5124973964842103.
+  EXPECT_NEAR(iwlo::intensity_weight(255.0, p), 0.5124973964842103, kTol);
+  EXPECT_NEAR(iwlo::intensity_weight(300.0, p), 0.5124973964842103, kTol);
+  EXPECT_NEAR(iwlo::intensity_weight(1e6, p), 0.5124973964842103, kTol);
+  p.sharpness = 2.0;
+  // w = 1 / (1 + exp(-2 * 0.5)) = 0.7310585786300049.
+  EXPECT_NEAR(iwlo::intensity_weight(1000.0, p), 0.7310585786300049, kTol);
+}
+
+TEST(IwloIntensityWeight, SigmoidOfNormalisedIntensityWhenInRange) {
+  IwloParams p;
+  // I = 145: u = (145 - 35) / 220 = 0.5 -> w = 1 / (1 + exp(0)) = 0.5 exactly.
+  EXPECT_NEAR(iwlo::intensity_weight(145.0, p), 0.5, kTol);
+  p.sharpness = 2.0;
+  // I = 90: u = 55 / 220 = 0.25 -> w = 1 / (1 + exp(-2 * -0.25)) = 1 / (1 + e^0.5) = 0.3775406687981454.
+  EXPECT_NEAR(iwlo::intensity_weight(90.0, p), 0.3775406687981454, kTol);
+}
+
+// ---- adaptive scale --------------------------------------------------------------------------
+
+TEST(IwloAdaptiveScale, ReducesOccupiedWhenProbabilityBelowThreshold) {
+  IwloParams p;  // P_th 0.5, r_max 0.3
+  // s = (0.25 / 0.5) * 0.3 = 0.15.
+  EXPECT_NEAR(iwlo::adaptive_scale(0.25, true, p), 0.15, kTol);
+  // P = 0.5 is not < P_th -> 1.
+  EXPECT_NEAR(iwlo::adaptive_scale(0.5, true, p), 1.0, kTol);
+  EXPECT_NEAR(iwlo::adaptive_scale(0.9, true, p), 1.0, kTol);
+  // Through delta(): L = -1 -> P = 1 / (1 + e) = 0.2689414213699951,
+  // s = 0.2689414213699951 / 0.5 * 0.3 = 0.16136485282199706; I = 145 -> w = 0.5; n = 1 -> alpha = 1.
+  // dL = 3.5 * 0.5 * 1 * 0.16136485282199706 = 0.28238849243849484.
+  EXPECT_NEAR(iwlo::delta(-1.0, 1, 145.0, true, 1.0, p), 0.28238849243849484, kTol);
+  p.adaptive_threshold = 0.2;
+  // s = (0.1 / 0.2) * 0.3 = 0.15; P = 0.3 >= 0.2 -> 1.
+  EXPECT_NEAR(iwlo::adaptive_scale(0.1, true, p), 0.15, kTol);
+  EXPECT_NEAR(iwlo::adaptive_scale(0.3, true, p), 1.0, kTol);
+}
+
+TEST(IwloAdaptiveScale, ReducesFreeWhenProbabilityAboveOneMinusThreshold) {
+  IwloParams p;  // P_th 0.5, r_max 0.3
+  // P = 0.9 > 0.5: f = (0.9 - 0.5) / 0.5 = 0.8, s = 0.3 + 0.7 * (1 - 0.8) = 0.44.
+  EXPECT_NEAR(iwlo::adaptive_scale(0.9, false, p), 0.44, kTol);
+  // P = 0.5 is not > 0.5 -> 1; P = 0.1 -> 1.
+  EXPECT_NEAR(iwlo::adaptive_scale(0.5, false, p), 1.0, kTol);
+  EXPECT_NEAR(iwlo::adaptive_scale(0.1, false, p), 1.0, kTol);
+  // Through delta(): L = 2 -> P = 1 / (1 + e^-2) = 0.8807970779778823,
+  // f = (0.8807970779778823 - 0.5) / 0.5 = 0.7615941559557646,
+  // s = 0.3 + 0.7 * 0.2384058440442354 = 0.4668840908309647, dL = -3 * 1 * s = -1.400652272492894.
+  EXPECT_NEAR(iwlo::delta(2.0, 1, 0.0, false, 1.0, p), -1.400652272492894, kTol);
+  p.adaptive_threshold = 0.2;
+  // 1 - P_th = 0.8; P = 0.9: f = 0.1 / 0.2 = 0.5, s = 0.3 + 0.7 * 0.5 = 0.65. P = 0.75 -> 1.
+  EXPECT_NEAR(iwlo::adaptive_scale(0.9, false, p), 0.65, kTol);
+  EXPECT_NEAR(iwlo::adaptive_scale(0.75, false, p), 1.0, kTol);
+}
+
+TEST(IwloAdaptiveScale, OneWhenAdaptiveDisabled) {
+  IwloParams p;
+  p.adaptive_enabled = false;
+  EXPECT_EQ(iwlo::adaptive_scale(0.01, true, p), 1.0);
+  EXPECT_EQ(iwlo::adaptive_scale(0.99, false, p), 1.0);
+  // Same inputs as the adaptive cases above, now unscaled:
+  // L = -1, I = 145 (w = 0.5), occupied: dL = 3.5 * 0.5 * 1 * 1 = 1.75.
+  EXPECT_NEAR(iwlo::delta(-1.0, 1, 145.0, true, 1.0, p), 1.75, kTol);
+  // L = 2, free: dL = -3 * 1 * 1 = -3.
+  EXPECT_NEAR(iwlo::delta(2.0, 1, 0.0, false, 1.0, p), -3.0, kTol);
+}
+
+// ---- learning rate ---------------------------------------------------------------------------
+
+TEST(IwloLearningRate, OneWhenFirstObservation) {
+  IwloParams p;
+  EXPECT_EQ(iwlo::learning_rate(1, p), 1.0);
+  p.decay_rate = 5.0;
+  EXPECT_EQ(iwlo::learning_rate(1, p), 1.0);
+  // n = 2 with decay 5: 1 / (1 + 5) = 0.1667 < min_alpha 0.3 -> 0.3.
+  EXPECT_NEAR(iwlo::learning_rate(2, p), 0.3, kTol);
+  p.decay_rate = 0.1;
+  // n = 2: 1 / (1 + 0.1) = 0.9090909090909091.
+  EXPECT_NEAR(iwlo::learning_rate(2, p), 0.9090909090909091, kTol);
+}
+
+TEST(IwloLearningRate, FloorWhenDecayedBelowMinAlpha) {
+  IwloParams p;  // decay 0.1, min_alpha 0.3
+  // n = 24: 1 / (1 + 2.3) = 0.303030303030303 > 0.3 (not yet at the floor).
+  EXPECT_NEAR(iwlo::learning_rate(24, p), 0.303030303030303, kTol);
+  // n = 25: 1 / (1 + 2.4) = 0.294 < 0.3 -> 0.3.
+  EXPECT_NEAR(iwlo::learning_rate(25, p), 0.3, kTol);
+  EXPECT_NEAR(iwlo::learning_rate(1000, p), 0.3, kTol);
+  // L = 0, free, n = 100: dL = -3 * 0.3 * 1 = -0.9.
+  EXPECT_NEAR(iwlo::delta(0.0, 100, 0.0, false, 1.0, p), -0.9, kTol);
+  p.min_alpha = 1.0;
+  EXPECT_NEAR(iwlo::learning_rate(5, p), 1.0, kTol);
+}
+
+// ---- clamps and weights ----------------------------------------------------------------------
+
+TEST(IwloStep, ClampedAtLmaxWhenIncrementOvershoots) {
+  IwloParams p;
+  // L = 9 -> P > 0.5 -> occupied s = 1; I = 255 -> w = 0.5124973964842103; n = 1 -> alpha = 1.
+  // 9 + 3.5 * 0.5124973964842103 = 10.7937... -> clamped to L_max = 10.
+  EXPECT_EQ(iwlo::step(9.0, 1, 255.0, true, 1.0, p), 10.0);
+  p.L_max = 2.0;
+  // 1.5 + 1.79 = 3.29 -> 2.
+  EXPECT_EQ(iwlo::step(1.5, 1, 255.0, true, 1.0, p), 2.0);
+  // Below the clamp nothing is cut: L = 0 (P = 0.5 -> s = 1), I = 145 (w = 0.5): 0 + 3.5 * 0.5 = 1.75 < 2.
+  EXPECT_NEAR(iwlo::step(0.0, 1, 145.0, true, 1.0, p), 1.75, kTol);
+}
+
+TEST(IwloStep, ClampedAtLminWhenDecrementOvershoots) {
+  IwloParams p;
+  // L = -9 -> P = 1.2339e-4, not > 0.5 -> s = 1; free dL = -3 -> -12 -> clamped to L_min = -10.
+  EXPECT_EQ(iwlo::step(-9.0, 1, 0.0, false, 1.0, p), -10.0);
+  p.L_min = -1.0;
+  // 0 - 3 = -3 -> -1.
+  EXPECT_EQ(iwlo::step(0.0, 1, 0.0, false, 1.0, p), -1.0);
+}
+
+TEST(IwloStep, IncrementScaledWhenPerPointWeightGiven) {
+  const IwloParams p;
+  // W = 0: no change at all, occupied or free.
+  EXPECT_EQ(iwlo::delta(1.25, 1, 200.0, true, 0.0, p), 0.0);
+  EXPECT_EQ(iwlo::step(1.25, 1, 200.0, true, 0.0, p), 1.25);
+  EXPECT_EQ(iwlo::step(-0.5, 3, 0.0, false, 0.0, p), -0.5);
+  // L = 0, free, n = 1: dL = -3 * W.
+  EXPECT_NEAR(iwlo::delta(0.0, 1, 0.0, false, 0.5, p), -1.5, kTol);
+  EXPECT_NEAR(iwlo::delta(0.0, 1, 0.0, false, 2.0, p), -6.0, kTol);
+  // L = 0, occupied, I = 145 (w = 0.5), P = 0.5 not < 0.5 -> s = 1: dL = 3.5 * 0.5 * W.
+  EXPECT_NEAR(iwlo::delta(0.0, 1, 145.0, true, 0.5, p), 0.875, kTol);
+  EXPECT_NEAR(iwlo::delta(0.0, 1, 145.0, true, 2.0, p), 3.5, kTol);
+}
+
+TEST(IwloStep, CombinesAllFactorsWhenOccupiedAfterSeveralObservations) {
+  const IwloParams p;
+  // L = -1, n = 3, I = 90, W = 0.5:
+  //   u = 55 / 220 = 0.25, w = 1 / (1 + exp(-0.1 * -0.25)) = 1 / (1 + e^0.025) = 0.49375032550048964
+  //   alpha = max(0.3, 1 / (1 + 0.1 * 2)) = 0.8333333333333334
+  //   P = 0.2689414213699951 < 0.5 -> s = 0.16136485282199706
+  //   dL = 3.5 * w * alpha * s * 0.5 = 0.1161911750492495 -> L = -0.8838088249507505.
+  EXPECT_NEAR(iwlo::delta(-1.0, 3, 90.0, true, 0.5, p), 0.1161911750492495, kTol);
+  EXPECT_NEAR(iwlo::step(-1.0, 3, 90.0, true, 0.5, p), -0.8838088249507505, kTol);
+}
+
+// ---- stored state ----------------------------------------------------------------------------
+
+TEST(IwloApplyObservation, StoresFloatAndCountsWhenObserved) {
+  const IwloParams p;
+  float L = 0.0f;
+  std::uint16_t n = 0;
+  iwlo::apply_observation(L, n, 0.0, false, 1.0, p);
+  // First free observation: -3.
+  EXPECT_EQ(L, -3.0f);
+  EXPECT_EQ(n, 1);
+  iwlo::apply_observation(L, n, 0.0, false, 1.0, p);
+  // n = 2: alpha = 1 / 1.1; P(-3) = 0.0474 not > 0.5 -> s = 1; -3 - 3 / 1.1 = -5.727272727272727.
+  EXPECT_EQ(L, static_cast<float>(-5.727272727272727));
+  EXPECT_EQ(n, 2);
+  // W = 0 counts the observation but leaves L alone.
+  iwlo::apply_observation(L, n, 200.0, true, 0.0, p);
+  EXPECT_EQ(L, static_cast<float>(-5.727272727272727));
+  EXPECT_EQ(n, 3);
+}
+
+TEST(IwloApplyObservation, CountSaturatesWhenAtMaxCount) {
+  static_assert(iwlo::kMaxCount == 65535u, "counts are uint16");
+  EXPECT_EQ(iwlo::increment_count(0), 1u);
+  EXPECT_EQ(iwlo::increment_count(65534), 65535u);
+  EXPECT_EQ(iwlo::increment_count(65535), 65535u);
+  EXPECT_EQ(iwlo::increment_count(70000), 65535u);
+
+  const IwloParams p;
+  float L = 0.0f;
+  std::uint16_t n = 65534;
+  iwlo::apply_observation(L, n, 0.0, false, 1.0, p);
+  EXPECT_EQ(n, 65535);
+  // alpha at n = 65535 is the floor 0.3; P = 0.5 -> s = 1: L = -3 * 0.3 = -0.9.
+  EXPECT_EQ(L, static_cast<float>(-0.9));
+  iwlo::apply_observation(L, n, 0.0, false, 1.0, p);
+  EXPECT_EQ(n, 65535);  // never wraps to 0
+  // Still updated: P(-0.9) = 0.289, s = 1: -0.9 - 0.9 = -1.8 (computed from the float -0.9).
+  EXPECT_NEAR(L, -1.8, 1e-6);
+}
+
+TEST(IwloProbability, LogOddsRoundTripWhenKnownValues) {
+  EXPECT_EQ(iwlo::probability(0.0), 0.5);
+  // 1 / (1 + exp(-ln 3)) = 1 / (1 + 1/3) = 0.75.
+  EXPECT_NEAR(iwlo::probability(1.0986122886681098), 0.75, kTol);
+  EXPECT_NEAR(iwlo::log_odds(0.75), 1.0986122886681098, kTol);
+  // ln(0.7 / 0.3) = ln(7/3) = 0.8472978603872037.
+  EXPECT_NEAR(iwlo::log_odds(0.7), 0.8472978603872037, kTol);
+  EXPECT_NEAR(iwlo::log_odds(0.5), 0.0, kTol);
+}
+
+// ---- the precomputed Updater -----------------------------------------------------------------
+
+TEST(IwloUpdater, MatchesHandValuesWhenDefaultParams) {
+  const iwlo::Updater u;
+  // Same as the adaptive occupied case above: -1 + 0.28238849243849484 = -0.7176115075615052.
+  EXPECT_NEAR(u.step(-1.0, 1, 145.0, true, 1.0), -0.7176115075615052, kTol);
+  // First free observation from 0: -3; clamped at L_min from -9.
+  EXPECT_NEAR(u.step(0.0, 1, 0.0, false, 1.0), -3.0, kTol);
+  EXPECT_EQ(u.step(-9.0, 1, 0.0, false, 1.0), -10.0);
+  // Alpha floor at n = 100: -3 * 0.3 = -0.9.
+  EXPECT_NEAR(u.step(0.0, 100, 0.0, false, 1.0), -0.9, kTol);
+  // Non-integer intensity 90.5 (not in the integer table): u = 55.5 / 220 = 0.2522727272727273,
+  // u - 0.5 = -0.24772727272727274, w = 1 / (1 + exp(0.024772727272727274));
+  // L = 0 (P = 0.5, s = 1): 3.5 * w = 1.7283249721004328.
+  EXPECT_NEAR(u.step(0.0, 1, 90.5, true, 1.0), 1.7283249721004328, kTol);
+}
+
+TEST(IwloUpdater, ThrowsWhenParamsInvalid) {
+  IwloParams p;
+  p.min_alpha = 0.0;
+  EXPECT_THROW(iwlo::Updater{p}, std::invalid_argument);
+}
+
+// The Updater promises bit-identical results to step(); sweep the inputs where its shortcuts
+// (tables, skipped probability near the adaptive thresholds) could diverge.
+TEST(IwloUpdater, BitIdenticalToStepWhenSweepingInputs) {
+  std::vector<IwloParams> param_sets(8);
+  param_sets[1].adaptive_enabled = false;
+  param_sets[2].adaptive_threshold = 0.2;
+  param_sets[2].adaptive_max_ratio = 0.6;
+  param_sets[3].adaptive_threshold = 0.8;
+  param_sets[3].adaptive_max_ratio = 0.0;
+  param_sets[4].decay_rate = 1e-4;  // floor reached only after ~23,000 observations
+  param_sets[5].decay_rate = 0.0;
+  param_sets[5].min_alpha = 0.5;
+  param_sets[6].intensity_threshold = 100.0;  // I_max < I_th: the guard
+  param_sets[6].intensity_max = 50.0;
+  param_sets[6].sharpness = 2.0;
+  param_sets[7].intensity_threshold = 0.0;  // lidar preset
+  param_sets[7].min_alpha = 1.0;
+  const double counts[] = {1, 2, 3, 24, 25, 100, 4095, 4096, 4097, 5000, 30000, 65535};
+  const double intensities[] = {-1.0, 0.0, 1.0, 34.0, 35.0, 35.5, 36.0, 90.5, 100.0, 145.25, 200.0, 254.9999,
+                                255.0, 256.0, 300.0};
+  const double weights[] = {0.0, 0.5, 1.0, 2.0};
+  std::size_t compared = 0;
+  std::size_t mismatches = 0;
+  for (const IwloParams& p : param_sets) {
+    const iwlo::Updater u(p);
+    std::vector<double> log_odds = {-10.0, -3.0, -1e-7, 0.0, 1e-7, 0.3, 2.0, 9.99};
+    for (double th : {p.adaptive_threshold, 1.0 - p.adaptive_threshold}) {
+      const double l = std::log(th / (1.0 - th));
+      for (double eps : {0.0, 1e-12, 1e-9, 1e-6, 2e-6, 1e-3}) {
+        log_odds.push_back(l + eps);
+        log_odds.push_back(l - eps);
+      }
+    }
+    for (double L : log_odds)
+      for (double n : counts)
+        for (double I : intensities)
+          for (bool flag : {false, true})
+            for (double W : weights) {
+              const auto c = static_cast<std::uint32_t>(n);
+              const double want = iwlo::step(L, c, I, flag, W, p);
+              const double got = u.step(L, c, I, flag, W);
+              ++compared;
+              if (want != got && ++mismatches <= 10)
+                ADD_FAILURE() << "L = " << L << " n = " << c << " I = " << I << " flag = " << flag << " W = " << W
+                              << ": step() " << want << ", Updater " << got;
+            }
+  }
+  EXPECT_EQ(mismatches, 0u) << "of " << compared;
+  EXPECT_GT(compared, 100000u);
+}
+
+TEST(IwloApplyObservation, SameStoredStateWhenUsingUpdater) {
+  const IwloParams p;
+  const iwlo::Updater u(p);
+  float La = 0.0f, Lb = 0.0f;
+  std::uint16_t na = 0, nb = 0;
+  const double seq[][3] = {{200, 1, 1}, {20, 1, 1}, {0, 0, 0.5}, {255, 1, 2}, {145.5, 1, 1}, {35, 1, 1}};
+  for (const auto& o : seq) {
+    iwlo::apply_observation(La, na, o[0], o[1] != 0.0, o[2], p);
+    iwlo::apply_observation(Lb, nb, o[0], o[1] != 0.0, o[2], u);
+    EXPECT_EQ(La, Lb);
+    EXPECT_EQ(na, nb);
+  }
+  EXPECT_EQ(na, 6);
+}
+
+// ---- parameters ------------------------------------------------------------------------------
+
+TEST(IwloParams, DefaultsMatchDesign) {
+  const IwloParams p;
+  EXPECT_EQ(p.sharpness, 0.1);
+  EXPECT_EQ(p.decay_rate, 0.1);
+  EXPECT_EQ(p.min_alpha, 0.3);
+  EXPECT_EQ(p.L_min, -10.0);
+  EXPECT_EQ(p.L_max, 10.0);
+  EXPECT_EQ(p.log_odds_occupied, 3.5);
+  EXPECT_EQ(p.log_odds_free, -3.0);
+  EXPECT_EQ(p.intensity_threshold, 35.0);
+  EXPECT_EQ(p.intensity_max, 255.0);
+  EXPECT_TRUE(p.adaptive_enabled);
+  EXPECT_EQ(p.adaptive_threshold, 0.5);
+  EXPECT_EQ(p.adaptive_max_ratio, 0.3);
+  EXPECT_EQ(p.occupied_threshold, 0.7);
+  EXPECT_NO_THROW(p.validate());
+}
+
+struct InvalidCase {
+  const char* label;
+  std::function<void(IwloParams&)> mutate;
+  std::string expected;  // "name = value" as it must appear in the message
+};
+
+TEST(IwloParams, ValidateThrowsNamingParameterAndValueWhenInvalid) {
+  const std::vector<InvalidCase> cases = {
+      {"sharpness NaN", [](IwloParams& p) { p.sharpness = kNaN; }, "sharpness = nan"},
+      {"sharpness inf", [](IwloParams& p) { p.sharpness = kInf; }, "sharpness = inf"},
+      {"decay_rate negative", [](IwloParams& p) { p.decay_rate = -0.5; }, "decay_rate = -0.5"},
+      {"decay_rate inf", [](IwloParams& p) { p.decay_rate = kInf; }, "decay_rate = inf"},
+      {"min_alpha zero", [](IwloParams& p) { p.min_alpha = 0.0; }, "min_alpha = 0"},
+      {"min_alpha negative", [](IwloParams& p) { p.min_alpha = -0.25; }, "min_alpha = -0.25"},
+      {"min_alpha above one", [](IwloParams& p) { p.min_alpha = 1.5; }, "min_alpha = 1.5"},
+      {"min_alpha NaN", [](IwloParams& p) { p.min_alpha = kNaN; }, "min_alpha = nan"},
+      {"L_min equal L_max", [](IwloParams& p) { p.L_min = 5.0; p.L_max = 5.0; }, "L_min = 5"},
+      {"L_min above L_max", [](IwloParams& p) { p.L_min = 3.0; p.L_max = -2.0; }, "L_min = 3"},
+      {"L_min NaN", [](IwloParams& p) { p.L_min = kNaN; }, "L_min = nan"},
+      {"L_max inf", [](IwloParams& p) { p.L_max = kInf; }, "L_max = inf"},
+      {"log_odds_occupied NaN", [](IwloParams& p) { p.log_odds_occupied = kNaN; }, "log_odds_occupied = nan"},
+      {"log_odds_free -inf", [](IwloParams& p) { p.log_odds_free = -kInf; }, "log_odds_free = -inf"},
+      {"intensity_threshold NaN", [](IwloParams& p) { p.intensity_threshold = kNaN; }, "intensity_threshold = nan"},
+      {"intensity_max inf", [](IwloParams& p) { p.intensity_max = kInf; }, "intensity_max = inf"},
+      {"adaptive_threshold zero", [](IwloParams& p) { p.adaptive_threshold = 0.0; }, "adaptive_threshold = 0"},
+      {"adaptive_threshold one", [](IwloParams& p) { p.adaptive_threshold = 1.0; }, "adaptive_threshold = 1"},
+      {"adaptive_threshold NaN", [](IwloParams& p) { p.adaptive_threshold = kNaN; }, "adaptive_threshold = nan"},
+      {"adaptive_max_ratio negative", [](IwloParams& p) { p.adaptive_max_ratio = -0.5; }, "adaptive_max_ratio = -0.5"},
+      {"adaptive_max_ratio above one", [](IwloParams& p) { p.adaptive_max_ratio = 1.25; }, "adaptive_max_ratio = 1.25"},
+      {"occupied_threshold zero", [](IwloParams& p) { p.occupied_threshold = 0.0; }, "occupied_threshold = 0"},
+      {"occupied_threshold one", [](IwloParams& p) { p.occupied_threshold = 1.0; }, "occupied_threshold = 1"},
+      {"occupied_threshold NaN", [](IwloParams& p) { p.occupied_threshold = kNaN; }, "occupied_threshold = nan"},
+  };
+  for (const InvalidCase& c : cases) {
+    SCOPED_TRACE(c.label);
+    IwloParams p;
+    c.mutate(p);
+    try {
+      p.validate();
+      ADD_FAILURE() << "validate() accepted " << c.label;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(c.expected), std::string::npos)
+          << "message '" << e.what() << "' does not contain '" << c.expected << "'";
+    } catch (...) {
+      ADD_FAILURE() << "validate() threw something other than std::invalid_argument for " << c.label;
+    }
+  }
+}
+
+TEST(IwloParams, ValidateAcceptsWhenValuesOnInclusiveBoundaries) {
+  IwloParams p;
+  p.min_alpha = 1.0;          // (0, 1] includes 1
+  p.adaptive_max_ratio = 0.0;  // [0, 1]
+  p.decay_rate = 0.0;
+  EXPECT_NO_THROW(p.validate());
+  p.adaptive_max_ratio = 1.0;
+  EXPECT_NO_THROW(p.validate());
+  // I_max <= I_th is allowed (the weight guard handles it).
+  p.intensity_threshold = 100.0;
+  p.intensity_max = 100.0;
+  EXPECT_NO_THROW(p.validate());
+  p.intensity_max = 10.0;
+  EXPECT_NO_THROW(p.validate());
+  p.intensity_threshold = 0.0;  // lidar preset
+  p.intensity_max = 255.0;
+  EXPECT_NO_THROW(p.validate());
+}
+
+}  // namespace
+}  // namespace iwlomap
