@@ -11,6 +11,9 @@
 #include "iwlomap/probability_updater.h"
 #include "iwlomap/viewer/color_map.h"
 #include "iwlomap/viewer/snapshot_renderer.h"
+#ifdef IWLOMAP_TEST_PCL_ADAPTER
+#include "iwlomap/viewer/pcl_adapter.h"
+#endif
 
 #include <gtest/gtest.h>
 
@@ -27,6 +30,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <thread>
 #include <vector>
 
 namespace iwlomap::viewer {
@@ -416,6 +420,45 @@ TEST(SnapshotRenderer, PixelOutsideTheImageThrowsNamingIt) {
     EXPECT_NE(std::string(e.what()).find("(4, 0)"), std::string::npos) << e.what();
   }
 }
+
+TEST(SnapshotRenderer, CallsFromSeveralThreadsAllSucceed) {
+  // Renders are serialised inside; each thread must still get its own, correct image.
+  std::vector<RgbImage> images(3);
+  std::vector<std::thread> threads;
+  for (std::size_t t = 0; t < images.size(); ++t)
+    threads.emplace_back([&images, t] {
+      SnapshotOptions o = flat_top_view(100, 100);
+      o.color_by = ColorBy::kFixed;
+      o.fixed_color = {t == 0 ? 1.0 : 0.0, t == 1 ? 1.0 : 0.0, t == 2 ? 1.0 : 0.0};
+      images[t] = SnapshotRenderer::render(rows({{0, 0, 0, 1}}), 1.0, o);
+    });
+  for (auto& th : threads) th.join();
+  EXPECT_TRUE(near(images[0].pixel(50, 50), {255, 0, 0}));
+  EXPECT_TRUE(near(images[1].pixel(50, 50), {0, 255, 0}));
+  EXPECT_TRUE(near(images[2].pixel(50, 50), {0, 0, 255}));
+}
+
+#ifdef IWLOMAP_TEST_PCL_ADAPTER
+TEST(CloudToVoxels, TakesIntensityAsProbabilityOrTheDefault) {
+  pcl::PointCloud<pcl::PointXYZI> with;
+  with.push_back(pcl::PointXYZI(0.8f));
+  with[0].x = 1.0f;
+  with[0].y = 2.0f;
+  with[0].z = 3.0f;
+  const Eigen::MatrixXd a = cloud_to_voxels(with);
+  ASSERT_EQ(a.rows(), 1);
+  ASSERT_EQ(a.cols(), 4);
+  EXPECT_DOUBLE_EQ(a(0, 0), 1.0);
+  EXPECT_DOUBLE_EQ(a(0, 1), 2.0);
+  EXPECT_DOUBLE_EQ(a(0, 2), 3.0);
+  EXPECT_DOUBLE_EQ(a(0, 3), 0.8f);
+  pcl::PointCloud<pcl::PointXYZ> without;
+  without.push_back(pcl::PointXYZ(4.0f, 5.0f, 6.0f));
+  EXPECT_DOUBLE_EQ(cloud_to_voxels(without)(0, 3), 1.0);
+  EXPECT_DOUBLE_EQ(cloud_to_voxels(without, 0.75)(0, 3), 0.75);
+  EXPECT_EQ(cloud_to_voxels(pcl::PointCloud<pcl::PointXYZ>()).rows(), 0);
+}
+#endif
 
 /// Runs \p display_value (nullptr: unset) as DISPLAY in a child process, renders there, and
 /// returns how the child ended: 0 DisplayError naming xvfb-run, 1 another message, 2 no exception,

@@ -6,6 +6,8 @@
 #include <vtkNew.h>
 #include <vtkPNGWriter.h>
 
+#include <cerrno>
+#include <cstdio>
 #include <cstring>
 #include <stdexcept>
 #include <string>
@@ -27,6 +29,12 @@ void write_png(const RgbImage& image, const std::string& path) {
                                 " image needs " +
                                 std::to_string(static_cast<long long>(image.width) * image.height * 3) +
                                 " bytes, the buffer has " + std::to_string(image.rgb.size()));
+  // VTK's writer reports an unwritable path as "ran out of disk space"; say what is wrong first.
+  if (std::FILE* f = std::fopen(path.c_str(), "wb")) {
+    std::fclose(f);
+  } else {
+    throw std::runtime_error("write_png: cannot write '" + path + "': " + std::strerror(errno));
+  }
   vtkNew<vtkImageData> data;
   data->SetDimensions(image.width, image.height, 1);
   data->AllocateScalars(VTK_UNSIGNED_CHAR, 3);

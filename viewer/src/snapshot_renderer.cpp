@@ -33,6 +33,7 @@
 #include <cstdio>
 #include <cstring>
 #include <limits>
+#include <mutex>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -305,7 +306,7 @@ RgbImage render_scene(void* display, const Eigen::MatrixXd& v, double resolution
   const int title_px = std::clamp(static_cast<int>(std::lround(h / 26.0)), 10, 72);
   const int label_px = std::clamp(static_cast<int>(std::lround(h / 48.0)), 9, 40);
   const int title_band = title ? static_cast<int>(std::lround(title_px * 1.9)) : 0;
-  const int bar_band = bar ? std::clamp(static_cast<int>(std::lround(w * 0.13)), 48, 300) : 0;
+  const int bar_band = bar ? std::min(w / 4, std::clamp(static_cast<int>(std::lround(w * 0.13)), 48, 300)) : 0;
   const double map_x1 = static_cast<double>(w - bar_band) / w;
   const double map_y1 = static_cast<double>(h - title_band) / h;
   const double map_aspect = (map_x1 * w) / (map_y1 * h);
@@ -429,6 +430,9 @@ RgbImage SnapshotRenderer::render(const Eigen::MatrixXd& voxels_xyzp, double res
   // Everything that can be wrong with the input is reported before the display is needed.
   const Scene scene = collect(voxels_xyzp, resolution, options.color_by == ColorBy::kProbability);
   const auto [lo, hi] = color_range(options, scene, resolution);
+  // Xlib (without XInitThreads) and VTK's object factories are not thread-safe: one render at a time.
+  static std::mutex one_at_a_time;
+  const std::lock_guard<std::mutex> lock(one_at_a_time);
   // Declared before every VTK object (all of which live in render_scene), so it is closed last.
   const detail::XDisplay display = detail::XDisplay::open();
   return render_scene(display.get(), voxels_xyzp, resolution, options, scene, lo, hi);

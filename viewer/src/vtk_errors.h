@@ -20,7 +20,16 @@ class VtkErrorCollector : public vtkCommand {
     (void)caller;
     (void)event;
     if (!messages_.empty()) messages_ += "; ";
-    messages_ += call_data != nullptr ? static_cast<const char*>(call_data) : "unknown VTK error";
+    messages_ += call_data != nullptr ? essence(static_cast<const char*>(call_data)) : "unknown VTK error";
+  }
+
+  /// "ERROR: In file.cxx, line 254\nvtkPNGWriter (0x55...): Unable to open file x\n\n" -> "Unable
+  /// to open file x": the source location and object address mean nothing to our users.
+  [[nodiscard]] static std::string essence(std::string m) {
+    if (const auto nl = m.find('\n'); m.rfind("ERROR: In ", 0) == 0 && nl != std::string::npos) m.erase(0, nl + 1);
+    if (const auto tag = m.find("): "); tag != std::string::npos && m.find('\n') > tag) m.erase(0, tag + 3);
+    while (!m.empty() && (m.back() == '\n' || m.back() == ' ')) m.pop_back();
+    return m;
   }
 
   /// Observes the ErrorEvent of \p object.

@@ -118,7 +118,8 @@ struct RgbImage {
 void write_png(const RgbImage& image, const std::string& path);
 
 /// Off-screen snapshots of occupied voxels. Each call opens the display, renders in a hidden
-/// window and releases everything again (nothing is kept between calls).
+/// window and releases everything again (nothing is kept between calls). Safe to call from any
+/// thread: renders are serialised internally, because Xlib and VTK's factories are not thread-safe.
 class SnapshotRenderer {
  public:
   SnapshotRenderer() = delete;
