@@ -1,0 +1,457 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// The backend contract, once for every backend: on the same seeded input, each backend must give
+// the RAM backend's (ProbabilityUpdater) per-voxel log-odds and counts, occupied voxels, skipped
+// points and exceptions. The RAM backend is the reference because its math is checked against
+// hand-computed values and a dense array elsewhere (test_iwlo, test_probability_updater).
+//
+// Adding a backend is one more factory struct in BackendFactories: it needs kType and make(); a
+// factory is an object, created per test, so one that needs a directory (Disk) can own it.
+
+#include "iwlomap/mapper_backend.h"
+#include "iwlomap/probability_updater.h"
+#include "iwlomap/synthetic_scan.h"
+#ifdef IWLOMAP_TEST_WITH_OCTOMAP
+#include "iwlomap/octree_mapper.h"
+#endif
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <functional>
+#include <limits>
+#include <map>
+#include <memory>
+#include <random>
+#include <stdexcept>
+#include <string>
+#include <tuple>
+#include <typeinfo>
+#include <utility>
+#include <vector>
+
+namespace iwlomap {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// ---- backends under test ----
+
+struct RamFactory {
+  static constexpr const char* kType = "RAM";
+  std::unique_ptr<IMapperBackend> make(double resolution) { return std::make_unique<ProbabilityUpdater>(resolution); }
+};
+
+#ifdef IWLOMAP_TEST_WITH_OCTOMAP
+struct OctoMapFactory {
+  static constexpr const char* kType = "OctoMap";
+  std::unique_ptr<IMapperBackend> make(double resolution) { return std::make_unique<OctreeMapper>(resolution); }
+};
+using BackendFactories = ::testing::Types<RamFactory, OctoMapFactory>;
+#else
+using BackendFactories = ::testing::Types<RamFactory>;
+#endif
+
+struct FactoryNames {
+  template <class T>
+  static std::string GetName(int) {
+    return T::kType;
+  }
+};
+
+template <class Factory>
+class BackendContract : public ::testing::Test {
+ protected:
+  std::unique_ptr<IMapperBackend> make(double resolution) { return factory_.make(resolution); }
+  static std::unique_ptr<IMapperBackend> make_reference(double resolution) {
+    return std::make_unique<ProbabilityUpdater>(resolution);
+  }
+
+ private:
+  Factory factory_;
+};
+TYPED_TEST_SUITE(BackendContract, BackendFactories, FactoryNames);
+
+// ---- comparison helpers ----
+
+using Snapshot = std::map<VoxelKey, std::pair<double, std::uint32_t>>;  // key -> (log-odds, count)
+
+Snapshot snapshot(const IMapperBackend& map) {
+  Snapshot s;
+  map.for_each_voxel([&s](const VoxelKey& k, const VoxelState& v) {
+    EXPECT_EQ(v.probability, 1.0 / (1.0 + std::exp(-v.log_odds)));
+    const bool inserted = s.emplace(k, std::make_pair(v.log_odds, v.count)).second;
+    EXPECT_TRUE(inserted) << "voxel (" << k.x << ", " << k.y << ", " << k.z << ") visited twice";
+  });
+  return s;
+}
+
+// Rows (x, y, z, p) sorted, so backends may list occupied voxels in any order.
+std::vector<std::array<double, 4>> sorted_rows(const Eigen::MatrixXd& m) {
+  std::vector<std::array<double, 4>> rows;
+  for (Eigen::Index i = 0; i < m.rows(); ++i) rows.push_back({m(i, 0), m(i, 1), m(i, 2), m(i, 3)});
+  std::sort(rows.begin(), rows.end());
+  return rows;
+}
+
+// Everything observable must be equal, bit for bit: the backends share the update math.
+void expect_same_map(IMapperBackend& got, IMapperBackend& want) {
+  const Snapshot g = snapshot(got), w = snapshot(want);
+  EXPECT_EQ(g.size(), w.size());
+  std::size_t mismatches = 0;
+  for (const auto& [k, v] : w) {
+    const auto it = g.find(k);
+    const bool ok = it != g.end() && it->second == v;
+    if (!ok && ++mismatches <= 5)
+      ADD_FAILURE() << "voxel (" << k.x << ", " << k.y << ", " << k.z << "): reference L = " << v.first
+                    << " n = " << v.second << ", " << got.get_backend_type()
+                    << (it == g.end() ? " does not know it" : " L = " + std::to_string(it->second.first) +
+                                                                  " n = " + std::to_string(it->second.second));
+  }
+  EXPECT_EQ(mismatches, 0u);
+  EXPECT_EQ(got.get_num_nodes(), want.get_num_nodes());
+  EXPECT_EQ(got.get_num_skipped_points(), want.get_num_skipped_points());
+  for (double p : {-1.0, 0.0, 0.3, 0.5, 0.7, 0.95})
+    EXPECT_EQ(sorted_rows(got.get_occupied_voxels(p)), sorted_rows(want.get_occupied_voxels(p))) << "min_probability " << p;
+  // query() agrees with the visitor.
+  const double r = want.get_resolution();
+  int checked = 0;
+  for (const auto& [k, v] : w) {
+    if (++checked > 2000) break;
+    const auto s = got.query(key_to_center(k, r));
+    ASSERT_TRUE(s.has_value());
+    EXPECT_EQ(s->log_odds, v.first);
+    EXPECT_EQ(s->count, v.second);
+  }
+}
+
+struct Batch {
+  Eigen::MatrixXd points;
+  Eigen::VectorXd intensities;
+  std::vector<bool> flags;
+  Eigen::VectorXd weights;
+};
+
+// Points in a small box (so voxels repeat, within and across batches), integer and fractional
+// intensities around the threshold, a few non-finite rows, weights including 0.
+Batch random_batch(std::mt19937& rng, int n, double half_extent) {
+  std::uniform_real_distribution<double> coord(-half_extent, half_extent);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  std::uniform_int_distribution<int> int_intensity(0, 255);
+  Batch b{Eigen::MatrixXd(n, 3), Eigen::VectorXd(n), std::vector<bool>(static_cast<std::size_t>(n)),
+          Eigen::VectorXd(n)};
+  for (int i = 0; i < n; ++i) {
+    b.points.row(i) << coord(rng), coord(rng), coord(rng);
+    b.intensities[i] = unit(rng) < 0.5 ? static_cast<double>(int_intensity(rng)) : 255.0 * unit(rng);
+    b.flags[static_cast<std::size_t>(i)] = unit(rng) < 0.6;
+    const double u = unit(rng);
+    b.weights[i] = u < 0.1 ? 0.0 : 2.0 * unit(rng);
+    if (unit(rng) < 0.01) b.points(i, static_cast<Eigen::Index>(i % 3)) = i % 2 == 0 ? kNaN : kInf;
+    if (unit(rng) < 0.005) b.intensities[i] = kNaN;
+  }
+  return b;
+}
+
+// ---- the suite ----
+
+TYPED_TEST(BackendContract, ReportsTypeResolutionAndEmptyMapWhenNew) {
+  auto map = this->make(0.25);
+  EXPECT_EQ(map->get_backend_type(), TypeParam::kType);
+  EXPECT_EQ(map->get_resolution(), 0.25);
+  EXPECT_EQ(map->get_num_nodes(), 0u);
+  EXPECT_EQ(map->get_num_skipped_points(), 0u);
+  EXPECT_EQ(map->get_occupied_voxels().rows(), 0);
+  EXPECT_EQ(map->get_occupied_voxels().cols(), 4);
+  EXPECT_FALSE(map->query(Eigen::Vector3d(1.0, 2.0, 3.0)).has_value());
+  EXPECT_TRUE(snapshot(*map).empty());
+}
+
+TYPED_TEST(BackendContract, CreatedByMakeBackendWhenNamed) {
+  const auto map = make_backend(TypeParam::kType, 0.3);
+  EXPECT_EQ(map->get_backend_type(), TypeParam::kType);
+  EXPECT_EQ(map->get_resolution(), 0.3);
+  const auto names = available_backends();
+  EXPECT_NE(std::find(names.begin(), names.end(), std::string(TypeParam::kType)), names.end());
+}
+
+TYPED_TEST(BackendContract, MatchesRamWhenBatchesWithoutWeights) {
+  auto map = this->make(0.25);
+  auto ref = this->make_reference(0.25);
+  std::mt19937 rng(20240601u);
+  for (int b = 0; b < 6; ++b) {
+    const Batch batch = random_batch(rng, 20000, 3.0);
+    map->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+    ref->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+  }
+  EXPECT_GT(ref->get_num_skipped_points(), 0u);
+  EXPECT_GT(ref->get_occupied_voxels().rows(), 0);
+  expect_same_map(*map, *ref);
+}
+
+TYPED_TEST(BackendContract, MatchesRamWhenBatchesWithWeights) {
+  auto map = this->make(0.2);
+  auto ref = this->make_reference(0.2);
+  std::mt19937 rng(777u);
+  for (int b = 0; b < 6; ++b) {
+    const Batch batch = random_batch(rng, 15000, 2.0);
+    if (b % 2 == 0) {
+      map->batch_update_iwlo(batch.points, batch.intensities, batch.flags, batch.weights);
+      ref->batch_update_iwlo(batch.points, batch.intensities, batch.flags, batch.weights);
+    } else {
+      map->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+      ref->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+    }
+  }
+  expect_same_map(*map, *ref);
+}
+
+TYPED_TEST(BackendContract, MatchesRamWhenScansWithMaxRange) {
+  auto map = this->make(0.2);
+  auto ref = this->make_reference(0.2);
+  const Eigen::Vector2d positions[] = {{0.0, 0.0}, {3.0, -2.0}, {-6.0, 4.5}, {8.0, 6.0}};
+  const double max_ranges[] = {-1.0, 12.0, 0.0, 7.5};
+  for (int s = 0; s < 4; ++s) {
+    SyntheticScanOptions o;
+    o.rings = 12;
+    o.columns = 180;
+    o.sensor_xy = positions[s];
+    o.seed = 100u + static_cast<std::uint32_t>(s);
+    SyntheticScan scan = make_synthetic_scan(o);
+    if (s == 2) {  // non-finite points and intensities are skipped and counted
+      scan.points(5, 1) = kNaN;
+      scan.points(17, 0) = kInf;
+      scan.intensities[40] = kNaN;
+    }
+    map->insert_scan(scan.origin, scan.points, scan.intensities, max_ranges[s]);
+    ref->insert_scan(scan.origin, scan.points, scan.intensities, max_ranges[s]);
+  }
+  EXPECT_EQ(ref->get_num_skipped_points(), 3u);
+  EXPECT_GT(ref->get_occupied_voxels().rows(), 100);
+  expect_same_map(*map, *ref);
+}
+
+TYPED_TEST(BackendContract, MatchesRamWhenScansAndBatchesMixWithChangedParams) {
+  auto map = this->make(0.3);
+  auto ref = this->make_reference(0.3);
+  std::mt19937 rng(99u);
+  IwloParams p;
+  p.adaptive_enabled = false;
+  p.intensity_threshold = 0.0;  // the lidar preset: every return is a hit
+  p.sharpness = 4.0;
+  p.L_min = -5.0;
+  p.L_max = 7.0;
+  map->set_params(p);
+  ref->set_params(p);
+  for (int s = 0; s < 3; ++s) {
+    SyntheticScanOptions o;
+    o.rings = 8;
+    o.columns = 120;
+    o.sensor_xy = Eigen::Vector2d(1.5 * s, -1.0 * s);
+    o.seed = 7u + static_cast<std::uint32_t>(s);
+    const SyntheticScan scan = make_synthetic_scan(o);
+    map->insert_scan(scan.origin, scan.points, scan.intensities, 15.0);
+    ref->insert_scan(scan.origin, scan.points, scan.intensities, 15.0);
+    const Batch batch = random_batch(rng, 5000, 6.0);
+    map->batch_update_iwlo(batch.points, batch.intensities, batch.flags, batch.weights);
+    ref->batch_update_iwlo(batch.points, batch.intensities, batch.flags, batch.weights);
+  }
+  map->set_adaptive_params(true, 0.4, 0.5);
+  ref->set_adaptive_params(true, 0.4, 0.5);
+  map->set_iwlo_params(0.2, 0.3, 0.25, -6.0, 6.0);
+  ref->set_iwlo_params(0.2, 0.3, 0.25, -6.0, 6.0);
+  map->set_log_odds_params(2.5, -1.5);
+  ref->set_log_odds_params(2.5, -1.5);
+  map->set_intensity_params(20.0, 200.0);
+  ref->set_intensity_params(20.0, 200.0);
+  map->set_occupied_threshold(0.8);
+  ref->set_occupied_threshold(0.8);
+  const Batch batch = random_batch(rng, 8000, 6.0);
+  map->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+  ref->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+  EXPECT_EQ(map->get_params().occupied_threshold, 0.8);
+  EXPECT_EQ(map->get_params().L_min, -6.0);
+  EXPECT_EQ(map->get_params().log_odds_free, -1.5);
+  expect_same_map(*map, *ref);
+}
+
+TYPED_TEST(BackendContract, MatchesRamWhenLogOddsSetAbsolutely) {
+  auto map = this->make(0.5);
+  auto ref = this->make_reference(0.5);
+  // Observed first, so counts above 1 must survive an absolute set.
+  const Eigen::MatrixXd seen = (Eigen::MatrixXd(3, 3) << 0.1, 0.1, 0.1, 0.2, 0.2, 0.2, 5.1, 0.1, 0.1).finished();
+  const Eigen::VectorXd intensities = Eigen::VectorXd::Constant(3, 200.0);
+  map->batch_update_iwlo(seen, intensities, {true, true, false});
+  ref->batch_update_iwlo(seen, intensities, {true, true, false});
+  Eigen::MatrixXd points(7, 3);
+  points << 0.2, 0.2, 0.2,  // count 2 stays 2
+      -0.3, 0.0, 7.0,       // new: count 1
+      1.0, 1.0, 1.0,        // clamped to L_max
+      2.0, 2.0, 2.0,        // clamped to L_min
+      kNaN, 0.0, 0.0,       // skipped
+      3.0, 3.0, 3.0,        // NaN value: skipped
+      -0.3, 0.1, 7.2;       // same voxel as row 1: the later row wins
+  Eigen::VectorXd values(7);
+  values << 1.25, -0.75, 50.0, -50.0, 1.0, kNaN, 0.5;
+  map->set_log_odds(points, values);
+  ref->set_log_odds(points, values);
+  expect_same_map(*map, *ref);
+  const auto s = map->query(Eigen::Vector3d(0.2, 0.2, 0.2));
+  ASSERT_TRUE(s.has_value());
+  EXPECT_EQ(s->log_odds, 1.25);
+  EXPECT_EQ(s->count, 2u);
+  EXPECT_EQ(map->query(Eigen::Vector3d(-0.3, 0.0, 7.0))->log_odds, 0.5);
+  EXPECT_EQ(map->query(Eigen::Vector3d(-0.3, 0.0, 7.0))->count, 1u);
+  EXPECT_EQ(map->query(Eigen::Vector3d(1.0, 1.0, 1.0))->log_odds, 10.0);
+  EXPECT_EQ(map->query(Eigen::Vector3d(2.0, 2.0, 2.0))->log_odds, -10.0);
+  EXPECT_FALSE(map->query(Eigen::Vector3d(3.0, 3.0, 3.0)).has_value());
+  EXPECT_EQ(map->get_num_skipped_points(), 2u);
+}
+
+TYPED_TEST(BackendContract, ReportsOccupiedStrictlyAboveMinProbability) {
+  auto map = this->make(1.0);
+  const Eigen::MatrixXd points = (Eigen::MatrixXd(2, 3) << 0.5, 0.5, 0.5, 1.5, 0.5, 0.5).finished();
+  map->set_log_odds(points, Eigen::Vector2d(0.0, 1.0));  // p = 0.5 exactly, and p = 0.731
+  EXPECT_EQ(map->get_occupied_voxels(0.5).rows(), 1);
+  EXPECT_EQ(map->get_occupied_voxels(0.49).rows(), 2);
+  EXPECT_EQ(map->get_occupied_voxels(1.0).rows(), 0);
+  const Eigen::MatrixXd occ = map->get_occupied_voxels();
+  ASSERT_EQ(occ.rows(), 1);
+  EXPECT_EQ(occ(0, 0), 1.5);
+  EXPECT_EQ(occ(0, 1), 0.5);
+  EXPECT_EQ(occ(0, 2), 0.5);
+  EXPECT_EQ(occ(0, 3), 1.0 / (1.0 + std::exp(-1.0)));
+}
+
+TYPED_TEST(BackendContract, ForgetsVoxelsAndKeepsParamsWhenCleared) {
+  auto map = this->make(0.25);
+  std::mt19937 rng(5u);
+  const Batch batch = random_batch(rng, 2000, 2.0);
+  map->set_occupied_threshold(0.65);
+  map->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+  ASSERT_GT(map->get_num_nodes(), 0u);
+  map->clear();
+  EXPECT_EQ(map->get_num_nodes(), 0u);
+  EXPECT_EQ(map->get_num_skipped_points(), 0u);
+  EXPECT_TRUE(snapshot(*map).empty());
+  EXPECT_EQ(map->get_occupied_voxels(0.0).rows(), 0);
+  EXPECT_EQ(map->get_params().occupied_threshold, 0.65);
+  // Usable again, and equal to a fresh reference.
+  auto ref = this->make_reference(0.25);
+  ref->set_occupied_threshold(0.65);
+  map->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+  ref->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+  expect_same_map(*map, *ref);
+}
+
+TYPED_TEST(BackendContract, KeepsAllVoxelsWhenPruned) {
+  auto map = this->make(0.25);
+  auto ref = this->make_reference(0.25);
+  std::mt19937 rng(8u);
+  const Batch batch = random_batch(rng, 5000, 1.0);  // a dense cube: many equal siblings to merge
+  map->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+  ref->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+  (void)map->prune();
+  expect_same_map(*map, *ref);
+  map->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+  ref->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+  expect_same_map(*map, *ref);
+}
+
+TYPED_TEST(BackendContract, DoesNothingWhenBatchEmpty) {
+  auto map = this->make(0.25);
+  map->batch_update_iwlo(Eigen::MatrixXd(0, 3), Eigen::VectorXd(0), {});
+  map->batch_update_iwlo(Eigen::MatrixXd(0, 3), Eigen::VectorXd(0), {}, Eigen::VectorXd(0));
+  map->insert_scan(Eigen::Vector3d::Zero(), Eigen::MatrixXd(0, 3), Eigen::VectorXd(0));
+  map->set_log_odds(Eigen::MatrixXd(0, 3), Eigen::VectorXd(0));
+  EXPECT_EQ(map->get_num_nodes(), 0u);
+}
+
+// ---- errors: the same exception, with the same message, and no change ----
+
+struct Outcome {
+  std::string type;  // "none" when nothing was thrown
+  std::string message;
+};
+
+Outcome run(const std::function<void(IMapperBackend&)>& call, IMapperBackend& map) {
+  try {
+    call(map);
+  } catch (const std::out_of_range& e) {
+    return {"std::out_of_range", e.what()};
+  } catch (const std::invalid_argument& e) {
+    return {"std::invalid_argument", e.what()};
+  } catch (const std::logic_error& e) {
+    return {"std::logic_error", e.what()};
+  } catch (const std::exception& e) {
+    return {typeid(e).name(), e.what()};
+  }
+  return {"none", ""};
+}
+
+TYPED_TEST(BackendContract, ThrowsLikeRamAndChangesNothingWhenInputInvalid) {
+  const Eigen::MatrixXd pts = (Eigen::MatrixXd(3, 3) << 0.1, 0.2, 0.3, 1.0, 1.0, 1.0, -2.0, 0.5, 0.5).finished();
+  const Eigen::VectorXd ints = Eigen::Vector3d(100.0, 200.0, 10.0);
+  const std::vector<bool> flags = {true, true, false};
+  const Eigen::MatrixXd far_pts = (Eigen::MatrixXd(2, 3) << 0.1, 0.1, 0.1, 1e12, 0.0, 0.0).finished();
+  const std::vector<std::pair<const char*, std::function<void(IMapperBackend&)>>> calls = {
+      {"points N x 2", [&](IMapperBackend& m) { m.batch_update_iwlo(Eigen::MatrixXd::Zero(3, 2), ints, flags); }},
+      {"intensities too short", [&](IMapperBackend& m) { m.batch_update_iwlo(pts, Eigen::Vector2d(1, 2), flags); }},
+      {"flags too long", [&](IMapperBackend& m) { m.batch_update_iwlo(pts, ints, {true, true, true, true}); }},
+      {"weights too short", [&](IMapperBackend& m) { m.batch_update_iwlo(pts, ints, flags, Eigen::Vector2d(1, 1)); }},
+      {"negative weight", [&](IMapperBackend& m) { m.batch_update_iwlo(pts, ints, flags, Eigen::Vector3d(1, -1, 1)); }},
+      {"NaN weight", [&](IMapperBackend& m) { m.batch_update_iwlo(pts, ints, flags, Eigen::Vector3d(1, 1, kNaN)); }},
+      {"point beyond int32 keys", [&](IMapperBackend& m) {
+         m.batch_update_iwlo(far_pts, Eigen::Vector2d(100, 100), {true, true});
+       }},
+      {"scan points N x 4", [&](IMapperBackend& m) { m.insert_scan(Eigen::Vector3d::Zero(), Eigen::MatrixXd::Zero(3, 4), ints); }},
+      {"scan intensities too long", [&](IMapperBackend& m) {
+         m.insert_scan(Eigen::Vector3d::Zero(), pts, Eigen::Vector4d(1, 2, 3, 4));
+       }},
+      {"scan origin NaN", [&](IMapperBackend& m) { m.insert_scan(Eigen::Vector3d(kNaN, 0, 0), pts, ints); }},
+      {"scan max_range NaN", [&](IMapperBackend& m) { m.insert_scan(Eigen::Vector3d::Zero(), pts, ints, kNaN); }},
+      {"scan point beyond int32 keys", [&](IMapperBackend& m) {
+         m.insert_scan(Eigen::Vector3d::Zero(), far_pts, Eigen::Vector2d(100, 100));
+       }},
+      {"set_log_odds values too short", [&](IMapperBackend& m) { m.set_log_odds(pts, Eigen::Vector2d(1, 2)); }},
+      {"set_log_odds points N x 1", [&](IMapperBackend& m) { m.set_log_odds(Eigen::MatrixXd::Zero(3, 1), ints); }},
+      {"set_log_odds point beyond int32", [&](IMapperBackend& m) { m.set_log_odds(far_pts, Eigen::Vector2d(1, 1)); }},
+      {"min_alpha 0", [](IMapperBackend& m) { m.set_iwlo_params(0.1, 0.1, 0.0, -10, 10); }},
+      {"L_min >= L_max", [](IMapperBackend& m) { m.set_iwlo_params(0.1, 0.1, 0.3, 5, 5); }},
+      {"log_odds_occupied inf", [](IMapperBackend& m) { m.set_log_odds_params(kInf, -3.0); }},
+      {"intensity_max NaN", [](IMapperBackend& m) { m.set_intensity_params(35.0, kNaN); }},
+      {"adaptive threshold 1", [](IMapperBackend& m) { m.set_adaptive_params(true, 1.0, 0.3); }},
+      {"occupied threshold 0", [](IMapperBackend& m) { m.set_occupied_threshold(0.0); }},
+      {"set_params decay_rate < 0", [](IMapperBackend& m) {
+         IwloParams p;
+         p.decay_rate = -0.5;
+         m.set_params(p);
+       }},
+      {"occupied min_probability NaN", [](IMapperBackend& m) { (void)m.get_occupied_voxels(kNaN); }},
+      {"occupied min_probability 1.5", [](IMapperBackend& m) { (void)m.get_occupied_voxels(1.5); }},
+      {"query NaN", [](IMapperBackend& m) { (void)m.query(Eigen::Vector3d(0, kNaN, 0)); }},
+  };
+  auto map = this->make(0.25);
+  auto ref = this->make_reference(0.25);
+  map->batch_update_iwlo(pts, ints, flags);
+  ref->batch_update_iwlo(pts, ints, flags);
+  const Snapshot before = snapshot(*map);
+  const IwloParams params_before = map->get_params();
+  for (const auto& [what, call] : calls) {
+    SCOPED_TRACE(what);
+    const Outcome want = run(call, *ref);
+    const Outcome got = run(call, *map);
+    EXPECT_NE(want.type, "none");
+    EXPECT_EQ(got.type, want.type);
+    EXPECT_EQ(got.message, want.message);
+    EXPECT_EQ(snapshot(*map), before);
+    EXPECT_EQ(map->get_num_skipped_points(), 0u);
+    EXPECT_EQ(map->get_params().L_min, params_before.L_min);
+    EXPECT_EQ(map->get_params().occupied_threshold, params_before.occupied_threshold);
+  }
+  expect_same_map(*map, *ref);
+}
+
+}  // namespace
+}  // namespace iwlomap
