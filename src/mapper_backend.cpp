@@ -6,10 +6,18 @@
 #include <algorithm>
 #include <cctype>
 #include <mutex>
+#include <thread>
 #include <stdexcept>
 #include <utility>
 
 namespace iwlomap {
+
+void IMapperBackend::set_num_threads(int threads) {
+  if (threads < 0)
+    throw std::invalid_argument("iwlomap: set_num_threads: threads must be >= 0 (0 = all hardware threads), got " +
+                                std::to_string(threads));
+  num_threads_ = threads > 0 ? threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+}
 
 namespace {
 

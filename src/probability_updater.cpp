@@ -7,14 +7,25 @@
 #include "detail/param_setters.h"
 #include "detail/scan_scratch.h"
 
+#include <algorithm>
 #include <stdexcept>
+#include <thread>
 
 namespace iwlomap {
 
 struct ProbabilityUpdater::Impl {
   explicit Impl(double res) : resolution(res) {}
 
-  // Applies one observation to the voxel \p key (the only place the grid changes).
+  // Applies one observation to voxel \p v of block \p b: the only place the grid changes.
+  // Returns true when the voxel was unknown before (the caller counts it).
+  static bool update_voxel(detail::VoxelBlock& b, detail::Voxel& v, double intensity, bool occupied_flag,
+                           double weight, const iwlo::Updater& updater) {
+    const bool was_unknown = v.count == 0;
+    if (was_unknown) ++b.known;
+    iwlo::apply_observation(v.log_odds, v.count, intensity, occupied_flag, weight, updater);
+    return was_unknown;
+  }
+
   void apply(detail::BlockAccessor& acc, const VoxelKey& key, double intensity, bool occupied_flag,
              double weight) {
     apply_in_block(acc.block(detail::block_of(key)), detail::index_in_block(key), intensity, occupied_flag, weight);
@@ -23,11 +34,7 @@ struct ProbabilityUpdater::Impl {
     apply_voxel(b, b.voxels[static_cast<std::size_t>(i)], intensity, occupied_flag, weight);
   }
   void apply_voxel(detail::VoxelBlock& b, detail::Voxel& v, double intensity, bool occupied_flag, double weight) {
-    if (v.count == 0) {
-      ++b.known;
-      ++known;
-    }
-    iwlo::apply_observation(v.log_odds, v.count, intensity, occupied_flag, weight, updater);
+    if (update_voxel(b, v, intensity, occupied_flag, weight, updater)) ++known;
   }
 
   // Two passes: first resolve every observation's voxel (allocating blocks), then update with the
@@ -93,11 +100,38 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
                                      const Eigen::VectorXd& intensities, double max_range) {
   Impl& m = impl();
   detail::check_scan_input(origin, points, intensities, max_range, m.resolution);
-  const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution);
+  const int threads = get_num_threads();
+  const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, threads);
   detail::BlockAccessor acc(m.grid);
-  m.scratch.for_each_observation(
-      [&](const VoxelKey& block_key, int index) { m.apply_in_block(acc.block(block_key), index, 0.0, false, 1.0); },
-      [&](const VoxelKey& key, double intensity) { m.apply(acc, key, intensity, true, 1.0); });
+  const std::size_t chunks = m.scratch.num_chunks();
+  const auto t = static_cast<std::size_t>(std::min<std::size_t>(static_cast<std::size_t>(threads), chunks / 4 + 1));
+  if (t <= 1) {
+    m.scratch.for_each_free(0, chunks, [&](const VoxelKey& block_key, int index) {
+      m.apply_in_block(acc.block(block_key), index, 0.0, false, 1.0);
+    });
+  } else {
+    // Blocks are allocated here, on one thread; then each thread updates the free voxels of its own
+    // range of scratch chunks. Chunks are disjoint, so are their blocks: no two threads touch one
+    // voxel, and the per-voxel results equal the single-thread ones.
+    m.scratch.for_each_block([&](const VoxelKey& block_key) { (void)acc.block(block_key); });
+    std::vector<std::size_t> newly_known(t, 0);
+    std::vector<std::thread> workers;
+    for (std::size_t k = 0; k < t; ++k) {
+      workers.emplace_back([&m, &newly_known, k, t, chunks] {
+        detail::VoxelBlock* last = nullptr;
+        std::size_t known = 0;
+        m.scratch.for_each_free(chunks * k / t, chunks * (k + 1) / t, [&](const VoxelKey& block_key, int index) {
+          if (last == nullptr || last->key != block_key) last = m.grid.find(block_key);
+          if (Impl::update_voxel(*last, last->voxels[static_cast<std::size_t>(index)], 0.0, false, 1.0, m.updater))
+            ++known;
+        });
+        newly_known[k] = known;
+      });
+    }
+    for (auto& w : workers) w.join();
+    for (const std::size_t n : newly_known) m.known += n;
+  }
+  m.scratch.for_each_hit([&](const VoxelKey& key, double intensity) { m.apply(acc, key, intensity, true, 1.0); });
   m.skipped += skip;
 }
 

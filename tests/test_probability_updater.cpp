@@ -4,9 +4,11 @@
 
 #include "iwlomap/probability_updater.h"
 #include "iwlomap/ray_caster.h"
+#include "iwlomap/synthetic_scan.h"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <initializer_list>
@@ -17,6 +19,7 @@
 #include <set>
 #include <stdexcept>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -797,6 +800,70 @@ TEST(ProbabilityUpdater, StoresAndQueriesWhenHundredKilometresAway) {
   EXPECT_EQ(map.get_num_nodes(), 3u + 21u);
   EXPECT_EQ(state_at(map, -2000000, 2000010, 1000), std::make_pair(-3.0, 1u));
   EXPECT_GT(state_at(map, -2000000, 2000020, 1000).first, 0.0);
+}
+
+// ---- threads ----
+
+// Every known voxel of a map, in a canonical order, with its exact stored state.
+std::vector<std::tuple<VoxelKey, double, std::uint32_t>> snapshot(const ProbabilityUpdater& m) {
+  std::vector<std::tuple<VoxelKey, double, std::uint32_t>> out;
+  m.for_each_voxel([&](const VoxelKey& k, const VoxelState& s) { out.emplace_back(k, s.log_odds, s.count); });
+  std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return std::get<0>(a) < std::get<0>(b); });
+  return out;
+}
+
+TEST(ProbabilityUpdaterThreads, InsertScanIsBitIdenticalForAnyThreadCount) {
+  std::vector<SyntheticScan> scans;
+  for (int k = 0; k < 3; ++k) {
+    SyntheticScanOptions o;
+    o.rings = 32;
+    o.columns = 512;  // 16,384 rays: enough for every thread count to get work
+    o.sensor_xy = Eigen::Vector2d(1.5 * k, 0.7 * k);
+    o.seed = static_cast<std::uint32_t>(10 + k);
+    scans.push_back(make_synthetic_scan(o));
+  }
+  scans[1].points(5, 0) = std::numeric_limits<double>::quiet_NaN();  // skipped the same way
+  std::vector<std::tuple<VoxelKey, double, std::uint32_t>> reference;
+  for (int threads : {1, 2, 3, 8}) {
+    ProbabilityUpdater m(0.15);
+    m.set_num_threads(threads);
+    EXPECT_EQ(m.get_num_threads(), threads);
+    for (const auto& s : scans) m.insert_scan(s.origin, s.points, s.intensities, 18.0);
+    const auto state = snapshot(m);
+    EXPECT_EQ(m.get_num_skipped_points(), 1u);
+    EXPECT_EQ(m.get_num_nodes(), state.size());
+    if (threads == 1) {
+      reference = state;
+      ASSERT_GT(reference.size(), 100000u);
+      continue;
+    }
+    ASSERT_EQ(state.size(), reference.size()) << threads << " threads";
+    EXPECT_TRUE(state == reference) << threads << " threads give a different map";
+  }
+}
+
+TEST(ProbabilityUpdaterThreads, ZeroMeansAllHardwareThreadsAndNegativeThrows) {
+  ProbabilityUpdater m(0.1);
+  EXPECT_EQ(m.get_num_threads(), 1);
+  m.set_num_threads(0);
+  EXPECT_GE(m.get_num_threads(), 1);
+  EXPECT_THROW(m.set_num_threads(-1), std::invalid_argument);
+}
+
+TEST(ProbabilityUpdaterThreads, OutOfRangePointThrowsTheFirstErrorAndKeepsTheMap) {
+  const SyntheticScan s = make_synthetic_scan();
+  Eigen::MatrixXd pts = s.points;
+  pts(100, 0) = 1e12;     // in the first thread's range
+  pts(60000, 1) = -1e12;  // in the last thread's range
+  ProbabilityUpdater m(0.1);
+  m.set_num_threads(4);
+  try {
+    m.insert_scan(s.origin, pts, s.intensities);
+    FAIL() << "no exception";
+  } catch (const std::out_of_range& e) {
+    EXPECT_NE(std::string(e.what()).find("point 100 "), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(m.get_num_nodes(), 0u);
 }
 
 }  // namespace

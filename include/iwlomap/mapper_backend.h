@@ -140,6 +140,17 @@ class IMapperBackend {
   /// The default throws std::logic_error naming the backend: a backend without it cannot be the
   /// target of an import.
   virtual void set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds);
+
+  /// Threads that insert_scan() may use to cast rays and apply them: 1 (the default, so that
+  /// single-thread figures stay comparable), N, or 0 for every hardware thread. The map is
+  /// bit-identical whatever the count. Backends that cannot use threads accept the setting and
+  /// work on one. Throws std::invalid_argument for a negative count.
+  void set_num_threads(int threads);
+  /// The thread count in effect (0 resolved to the hardware's count, at least 1).
+  [[nodiscard]] int get_num_threads() const noexcept { return num_threads_; }
+
+ private:
+  int num_threads_ = 1;
 };
 
 inline void IMapperBackend::set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) {

@@ -42,21 +42,35 @@ class ScanScratch {
   /// Casts every ray of one scan into the scratch (cleared first). Inputs must have passed
   /// check_scan_input(). Throws std::out_of_range for an endpoint whose key does not fit in int32
   /// (the map is untouched, since nothing is applied yet). Returns the number of skipped points.
+  /// With \p threads > 1 the points are split into that many contiguous ranges, each cast into a
+  /// scratch of its own on its own thread, and the scratches are merged (OR of the free bits, max
+  /// of the hit intensities): the result is bit-identical to threads = 1. When several ranges hold
+  /// an out-of-range point, the error of the first range is thrown, as in one thread.
   std::size_t collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
-                      const Eigen::VectorXd& intensities, double max_range, double resolution);
+                      const Eigen::VectorXd& intensities, double max_range, double resolution, int threads = 1);
 
-  [[nodiscard]] std::size_t num_chunks() const noexcept { return chunks_.size(); }
-  [[nodiscard]] const std::vector<Hit>& hits() const noexcept { return hits_; }
-
-  /// Calls free_fn(block_key, index_in_block) once per free voxel that holds no hit, grouped by
-  /// grid block (8^3) so consecutive calls share a block, then hit_fn(key, intensity) once per
-  /// hit voxel with its largest intensity.
-  template <class FreeFn, class HitFn>
-  void for_each_observation(FreeFn&& free_fn, HitFn&& hit_fn) const {
-    for (const Chunk& c : chunks_) {
+  /// Calls fn(block_key) for every grid block (8^3) that holds an observation, free or hit.
+  template <class Fn>
+  void for_each_block(Fn&& fn) const {
+    for (const Chunk& c : chunks_)
       for (int b = 0; b < kBlocksPerChunk; ++b) {
-        const VoxelKey block_key{c.key.x * kBlocksPerChunkEdge + (b & 3), c.key.y * kBlocksPerChunkEdge + ((b >> 2) & 3),
-                                 c.key.z * kBlocksPerChunkEdge + (b >> 4)};
+        std::uint64_t any = 0;
+        for (int w = 0; w < kWordsPerBlock; ++w) {
+          const std::size_t word = static_cast<std::size_t>(b * kWordsPerBlock + w);
+          any |= c.free[word] | c.hit[word];
+        }
+        if (any != 0) fn(block_key_of(c, b));
+      }
+  }
+
+  /// The free-voxel part of for_each_observation() restricted to chunks [begin, end), for
+  /// backends that apply disjoint chunk ranges on several threads.
+  template <class FreeFn>
+  void for_each_free(std::size_t begin, std::size_t end, FreeFn&& free_fn) const {
+    for (std::size_t ci = begin; ci < end; ++ci) {
+      const Chunk& c = chunks_[ci];
+      for (int b = 0; b < kBlocksPerChunk; ++b) {
+        const VoxelKey block_key = block_key_of(c, b);
         for (int w = 0; w < kWordsPerBlock; ++w) {
           const std::size_t word = static_cast<std::size_t>(b * kWordsPerBlock + w);
           std::uint64_t bits = c.free[word] & ~c.hit[word];
@@ -68,6 +82,23 @@ class ScanScratch {
         }
       }
     }
+  }
+
+  [[nodiscard]] std::size_t num_chunks() const noexcept { return chunks_.size(); }
+  [[nodiscard]] const std::vector<Hit>& hits() const noexcept { return hits_; }
+
+  /// Calls free_fn(block_key, index_in_block) once per free voxel that holds no hit, grouped by
+  /// grid block (8^3) so consecutive calls share a block, then hit_fn(key, intensity) once per
+  /// hit voxel with its largest intensity.
+  template <class FreeFn, class HitFn>
+  void for_each_observation(FreeFn&& free_fn, HitFn&& hit_fn) const {
+    for_each_free(0, chunks_.size(), free_fn);
+    for_each_hit(hit_fn);
+  }
+
+  /// The hit part of for_each_observation().
+  template <class HitFn>
+  void for_each_hit(HitFn&& hit_fn) const {
     for (const Hit& h : hits_) hit_fn(h.key, h.intensity);
   }
 
@@ -77,6 +108,16 @@ class ScanScratch {
   void release();
 
  private:
+  [[nodiscard]] static VoxelKey block_key_of(const Chunk& c, int b) noexcept {
+    return {c.key.x * kBlocksPerChunkEdge + (b & 3), c.key.y * kBlocksPerChunkEdge + ((b >> 2) & 3),
+            c.key.z * kBlocksPerChunkEdge + (b >> 4)};
+  }
+  void clear();
+  std::size_t collect_range(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                            const Eigen::VectorXd& intensities, double max_range, double resolution,
+                            Eigen::Index begin, Eigen::Index end);
+  void merge(const ScanScratch& other);
+
   // Bit of voxel k inside its chunk: block-major, then index_in_block().
   [[nodiscard]] static std::size_t bit_in_chunk(const VoxelKey& k) noexcept {
     constexpr int m = kBlocksPerChunkEdge - 1;
@@ -97,6 +138,7 @@ class ScanScratch {
   std::vector<Hit> hits_;
   FlatKeyMap hit_index_;
   std::int64_t last_ = -1;
+  std::vector<ScanScratch> helpers_;  // per-thread scratches, kept between scans
 };
 
 }  // namespace iwlomap::detail
