@@ -772,7 +772,9 @@ void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::Matri
                                const Eigen::VectorXd& intensities, double max_range) {
   Impl& m = impl();
   detail::check_scan_input(origin, points, intensities, max_range, m.resolution);
-  const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution);
+  // Rays may be cast on several threads (bit-identical); the octree is then updated on this one.
+  const std::size_t skip =
+      m.scratch.collect(origin, points, intensities, max_range, m.resolution, get_num_threads());
   // Every voxel the scan would update must have an OctoMap key; checked before anything changes.
   m.scratch.for_each_observation(
       [&](const VoxelKey& block_key, int index) {

@@ -232,6 +232,24 @@ TYPED_TEST(BackendContract, MatchesRamWhenScansWithMaxRange) {
   expect_same_map(*map, *ref);
 }
 
+TYPED_TEST(BackendContract, MatchesSingleThreadRamWhenScansUseThreads) {
+  auto map = this->make(0.2);
+  auto ref = this->make_reference(0.2);
+  map->set_num_threads(3);
+  EXPECT_EQ(map->get_num_threads(), 3);
+  for (int s = 0; s < 2; ++s) {
+    SyntheticScanOptions o;
+    o.rings = 16;
+    o.columns = 256;
+    o.sensor_xy = Eigen::Vector2d(-4.0 * s, 2.0 * s);
+    o.seed = 50u + static_cast<std::uint32_t>(s);
+    const SyntheticScan scan = make_synthetic_scan(o);
+    map->insert_scan(scan.origin, scan.points, scan.intensities, 20.0);
+    ref->insert_scan(scan.origin, scan.points, scan.intensities, 20.0);
+  }
+  expect_same_map(*map, *ref);
+}
+
 TYPED_TEST(BackendContract, MatchesRamWhenScansAndBatchesMixWithChangedParams) {
   auto map = this->make(0.3);
   auto ref = this->make_reference(0.3);

@@ -33,6 +33,9 @@ namespace iwlomap {
 /// to voxels -32768 <= k <= 32767 per axis (+-1638 m at 0.05 m); an update touching a voxel
 /// outside throws std::out_of_range and changes nothing (keys are never wrapped).
 ///
+/// set_num_threads() lets insert_scan() cast rays on several threads; the octree and the exact
+/// state are updated on the calling thread.
+///
 /// Not thread-safe: one thread at a time may call a mutating method; const methods may run
 /// concurrently with each other (the octree's derived data they refresh is guarded).
 /// Non-copyable, movable; a moved-from object throws std::logic_error from every method except
