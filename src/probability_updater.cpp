@@ -105,15 +105,17 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
   detail::BlockAccessor acc(m.grid);
   const std::size_t chunks = m.scratch.num_chunks();
   const auto t = static_cast<std::size_t>(std::min<std::size_t>(static_cast<std::size_t>(threads), chunks / 4 + 1));
+  // Blocks are allocated first, on one thread and in scratch order whatever the thread count, so
+  // that the map's iteration order does not depend on it either.
+  m.scratch.for_each_block([&](const VoxelKey& block_key) { (void)acc.block(block_key); });
   if (t <= 1) {
     m.scratch.for_each_free(0, chunks, [&](const VoxelKey& block_key, int index) {
       m.apply_in_block(acc.block(block_key), index, 0.0, false, 1.0);
     });
   } else {
-    // Blocks are allocated here, on one thread; then each thread updates the free voxels of its own
-    // range of scratch chunks. Chunks are disjoint, so are their blocks: no two threads touch one
-    // voxel, and the per-voxel results equal the single-thread ones.
-    m.scratch.for_each_block([&](const VoxelKey& block_key) { (void)acc.block(block_key); });
+    // Each thread updates the free voxels of its own range of scratch chunks. Chunks are disjoint,
+    // so are their blocks: no two threads touch one voxel, and the per-voxel results equal the
+    // single-thread ones.
     std::vector<std::size_t> newly_known(t, 0);
     std::vector<std::thread> workers;
     for (std::size_t k = 0; k < t; ++k) {

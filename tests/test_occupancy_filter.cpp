@@ -410,6 +410,42 @@ TEST(OccupancyFilterData, OusterFramesGiveAGroundPlaneBelowTheSensor) {
   EXPECT_LT(above_road->probability, 0.5);
 }
 
+TEST(OccupancyFilterData, OusterFramesGiveBitIdenticalMapsForAnyThreadCount) {
+  const auto dir = data_dir() / "ouster_os1_128_3frames";
+  if (!std::filesystem::exists(dir)) GTEST_SKIP() << "recorded data not found at " << dir << "; test skipped";
+  std::vector<Cloud::Ptr> frames;
+  for (int k = 0; k < 3; ++k) frames.push_back(load_or_skip(dir / ("frame_00" + std::to_string(k) + "_world.pcd")));
+  using State = std::vector<std::tuple<iwlomap::VoxelKey, double, std::uint32_t>>;
+  State reference;
+  for (int threads : {1, 2, 3, 8}) {
+    Filter f;
+    f.setResolution(0.25);
+    f.setMaxRange(40.0);
+    f.setNumThreads(threads);
+    EXPECT_EQ(f.getNumThreads(), threads);
+    Cloud out;
+    for (const auto& frame : frames) {
+      ASSERT_TRUE(frame);
+      f.setInputCloud(frame);
+      f.filter(out);
+    }
+    EXPECT_EQ(f.getMap()->get_num_threads(), threads);
+    State state;
+    f.getMap()->for_each_voxel([&](const iwlomap::VoxelKey& k, const iwlomap::VoxelState& v) {
+      state.emplace_back(k, v.log_odds, v.count);
+    });
+    if (threads == 1) {
+      reference = std::move(state);
+      ASSERT_GT(reference.size(), 100000u);
+      continue;
+    }
+    ASSERT_EQ(state.size(), reference.size()) << threads << " threads";
+    EXPECT_TRUE(state == reference) << threads << " threads give a different map";
+  }
+  Filter f;
+  EXPECT_THROW(f.setNumThreads(-2), std::invalid_argument);
+}
+
 TEST(OccupancyFilterData, OculusPingsWithoutRaysOccupyStrongEchoes) {
   const auto path = data_dir() / "oculus_sonar_3pings" / "ping_000_fan.pcd";
   auto ping = load_or_skip(path);

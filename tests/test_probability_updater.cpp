@@ -824,6 +824,7 @@ TEST(ProbabilityUpdaterThreads, InsertScanIsBitIdenticalForAnyThreadCount) {
   }
   scans[1].points(5, 0) = std::numeric_limits<double>::quiet_NaN();  // skipped the same way
   std::vector<std::tuple<VoxelKey, double, std::uint32_t>> reference;
+  std::vector<VoxelKey> reference_order;
   for (int threads : {1, 2, 3, 8}) {
     ProbabilityUpdater m(0.15);
     m.set_num_threads(threads);
@@ -832,13 +833,17 @@ TEST(ProbabilityUpdaterThreads, InsertScanIsBitIdenticalForAnyThreadCount) {
     const auto state = snapshot(m);
     EXPECT_EQ(m.get_num_skipped_points(), 1u);
     EXPECT_EQ(m.get_num_nodes(), state.size());
+    std::vector<VoxelKey> order;  // iteration order must not depend on the thread count either
+    m.for_each_voxel([&](const VoxelKey& k, const VoxelState&) { order.push_back(k); });
     if (threads == 1) {
+      reference_order = order;
       reference = state;
       ASSERT_GT(reference.size(), 100000u);
       continue;
     }
     ASSERT_EQ(state.size(), reference.size()) << threads << " threads";
     EXPECT_TRUE(state == reference) << threads << " threads give a different map";
+    EXPECT_TRUE(order == reference_order) << threads << " threads visit the voxels in another order";
   }
 }
 

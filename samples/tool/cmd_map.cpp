@@ -7,10 +7,12 @@
 #include "map_options.h"
 #include "progress.h"
 
+#include <iwlomap/async_mapper.h>
 #include <iwlomap/filters/cloud_conversions.h>
 
 #include <chrono>
 #include <iostream>
+#include <optional>
 
 namespace iwlomap::tool {
 
@@ -25,6 +27,8 @@ A file without an intensity field gives every point the intensity --intensity-ma
 
 output:
   -o, --output FILE         occupied voxels as .pcd or .ply (binary)
+  --async                   read the next file while the previous one is integrated (a background
+                            thread integrates; the map is the same)
 )";
 
 }  // namespace
@@ -33,7 +37,7 @@ int run_map(const std::vector<std::string>& argv) {
   auto value_opts = map_value_options();
   value_opts.insert({"-o", "--output"});
   auto flag_opts = map_flag_options();
-  flag_opts.insert({"-h", "--help", "-q", "--quiet"});
+  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async"});
   const Args args(argv, value_opts, flag_opts);
   if (args.flag("-h") || args.flag("--help")) {
     std::cout << kHelp << map_options_help() << "  -q, --quiet               no summary, no progress bar\n";
@@ -47,17 +51,30 @@ int run_map(const std::vector<std::string>& argv) {
     throw UsageError("the output must end in .pcd or .ply, got '" + *output + "'");
 
   const MapSetup setup = map_setup_from(args);
+  const bool async = args.flag("--async");
+  if (async && !setup.ray_casting) throw UsageError("--async needs ray casting (drop --no-rays)");
   const auto started = std::chrono::steady_clock::now();
   std::size_t points = 0;
   {
     Progress progress("mapping", inputs.size(), !quiet);
+    std::optional<AsyncMapper> background;
+    if (async) background.emplace(setup.map, ExecutionMode::kParallel, 2);
     for (std::size_t i = 0; i < inputs.size(); ++i) {
       progress.update(i, inputs[i]);
       const LoadedCloud in = load_cloud(inputs[i], static_cast<float>(setup.params.intensity_max));
-      integrate_cloud(*setup.map, *in.cloud, nullptr, setup.ray_casting, setup.max_range);
       points += in.cloud->size();
+      if (background) {
+        Eigen::MatrixXd xyz;
+        Eigen::VectorXd intensity;
+        cloud_to_matrices(*in.cloud, nullptr, setup.params.intensity_max, xyz, intensity);
+        background->integrate(in.cloud->sensor_origin_.head<3>().cast<double>(), std::move(xyz), std::move(intensity),
+                              setup.max_range);
+      } else {
+        integrate_cloud(*setup.map, *in.cloud, nullptr, setup.ray_casting, setup.max_range);
+      }
       progress.update(i + 1, inputs[i]);
     }
+    if (background) background->sync();
   }
   pcl::PointCloud<pcl::PointXYZI> occupied;
   occupied_to_cloud(*setup.map, setup.params.occupied_threshold, occupied);

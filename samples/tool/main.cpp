@@ -23,6 +23,7 @@ commands:
   info       describe a .pcd or .ply file
   generate   write a synthetic lidar scan (.pcd) to try the tool on
   render     draw a voxel map (.pcd/.ply) into a PNG image, off screen
+  sonar      map imaging-sonar pings (Oculus .raw) into one map, write the occupied voxels
 
 Run 'iwlomap <command> --help' for the options of a command.
 )";
@@ -49,6 +50,7 @@ int main(int argc, char** argv) {
     if (command == "info") return run_info(rest);
     if (command == "generate") return run_generate(rest);
     if (command == "render") return run_render(rest);
+    if (command == "sonar") return run_sonar(rest);
     throw UsageError("unknown command '" + command + "'");
   } catch (const UsageError& e) {
     std::cerr << "iwlomap " << (command.rfind('-', 0) == 0 ? std::string() : command + " ") << "usage error: " << e.what()

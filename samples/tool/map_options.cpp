@@ -9,7 +9,8 @@ namespace iwlomap::tool {
 std::set<std::string> map_value_options() {
   return {"--resolution", "--backend", "--tiles", "--max-range", "--sensor", "--threshold",
           "--sharpness", "--decay-rate", "--min-alpha", "--l-min", "--l-max", "--l-occ", "--l-free",
-          "--intensity-threshold", "--intensity-max", "--adaptive-threshold", "--adaptive-max-ratio"};
+          "--intensity-threshold", "--intensity-max", "--adaptive-threshold", "--adaptive-max-ratio",
+          "--threads"};
 }
 
 std::set<std::string> map_flag_options() { return {"--no-rays", "--no-adaptive"}; }
@@ -34,6 +35,7 @@ map:
                             threshold is free space); lidar sets --intensity-threshold 0, so every
                             return is a hit weighted by its intensity. Options below override it.
   --threshold P             output voxels with occupancy probability > P (default )") + num(d.occupied_threshold) + R"()
+  --threads N               threads for ray casting (default 1; 0 = all cores); same map for any N
 
 IWLO parameters (defaults in brackets):
   --sharpness S [)" + num(d.sharpness) + R"(]   --decay-rate D [)" + num(d.decay_rate) + R"(]   --min-alpha A [)" + num(d.min_alpha) + R"(]
@@ -88,8 +90,11 @@ MapSetup map_setup_from(const Args& args) {
   } else if (backend != "ram" && backend != "octomap") {
     throw UsageError("--backend must be ram, disk or octomap, got '" + backend + "'");
   }
+  const long threads = args.integer("--threads", 1);
+  if (threads < 0) throw UsageError("--threads must be >= 0 (0 = all cores)");
   s.map = make_backend(backend, resolution, options);
   s.map->set_params(p);
+  s.map->set_num_threads(static_cast<int>(threads));
   return s;
 }
 

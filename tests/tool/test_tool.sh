@@ -38,7 +38,7 @@ for cmd in map info generate; do
   check "help_$cmd" 0 "$TOOL" "$cmd" --help
   expect "help_${cmd}_usage" grep -q "usage: iwlomap $cmd" "$WORK/help_$cmd.out"
 done
-expect map_help_lists_every_option bash -c "for o in --resolution --backend --tiles --max-range --no-rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
+expect map_help_lists_every_option bash -c "for o in --threads --async --resolution --backend --tiles --max-range --no-rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
 
 check generate 0 "$TOOL" generate -o "$WORK/scan.pcd" --rings 16 --columns 256
 check info 0 "$TOOL" info "$WORK/scan.pcd"
@@ -52,6 +52,13 @@ check pcl_pcd2ply_opens_output 0 pcl_pcd2ply "$WORK/occupied.pcd" "$WORK/occupie
 expect pcl_ply_nonempty test -s "$WORK/occupied_from_pcl.ply"
 n_pcd=$(grep -a -m1 '^POINTS' "$WORK/occupied.pcd" | awk '{print $2}')
 expect map_found_occupied_voxels test "${n_pcd:-0}" -gt 100
+
+# Threads and the background integration give the same map.
+check map_threads_async 0 "$TOOL" map "$WORK/scan.pcd" "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --threads 3 --async -o "$WORK/occ_t3.pcd"
+check map_two_scans 0 "$TOOL" map "$WORK/scan.pcd" "$WORK/scan.pcd" --resolution 0.2 --sensor lidar -o "$WORK/occ_t1.pcd"
+expect threads_async_same_map cmp -s "$WORK/occ_t3.pcd" "$WORK/occ_t1.pcd"
+check async_without_rays 2 "$TOOL" map "$WORK/scan.pcd" --no-rays --async
+check negative_threads 2 "$TOOL" map "$WORK/scan.pcd" --threads -1
 
 # The same scan as .ply gives the same map.
 check pcl_pcd2ply_scan 0 pcl_pcd2ply "$WORK/scan.pcd" "$WORK/scan.ply"

@@ -30,19 +30,14 @@ template <typename PointT>
   }
 }
 
-/// Integrates \p cloud (restricted to \p indices when not null) into \p map. With ray casting, one
-/// scan from `cloud.sensor_origin_` (metres, map frame) via IMapperBackend::insert_scan(); without,
-/// every point is one observation (occupied iff its intensity exceeds the map's threshold) via
-/// batch_update_iwlo(). Points are taken as they are stored (map frame). Non-finite points are
-/// skipped and counted by the map.
+/// The points of \p cloud (restricted to \p indices when not null) as an N x 3 matrix in metres
+/// and their intensities (point_intensity()), as IMapperBackend takes them.
 template <typename PointT>
-void integrate_cloud(IMapperBackend& map, const pcl::PointCloud<PointT>& cloud, const pcl::Indices* indices,
-                     bool ray_casting, double max_range) {
+void cloud_to_matrices(const pcl::PointCloud<PointT>& cloud, const pcl::Indices* indices, double intensity_max,
+                       Eigen::MatrixXd& points, Eigen::VectorXd& intensities) {
   const std::size_t n = indices != nullptr ? indices->size() : cloud.size();
-  if (n == 0) return;
-  const double intensity_max = map.get_params().intensity_max;
-  Eigen::MatrixXd points(static_cast<Eigen::Index>(n), 3);
-  Eigen::VectorXd intensities(static_cast<Eigen::Index>(n));
+  points.resize(static_cast<Eigen::Index>(n), 3);
+  intensities.resize(static_cast<Eigen::Index>(n));
   for (std::size_t i = 0; i < n; ++i) {
     const PointT& p = cloud[indices != nullptr ? static_cast<std::size_t>((*indices)[i]) : i];
     const auto row = static_cast<Eigen::Index>(i);
@@ -51,10 +46,24 @@ void integrate_cloud(IMapperBackend& map, const pcl::PointCloud<PointT>& cloud, 
     points(row, 2) = p.z;
     intensities[row] = point_intensity(p, intensity_max);
   }
+}
+
+/// Integrates \p cloud (restricted to \p indices when not null) into \p map. With ray casting, one
+/// scan from `cloud.sensor_origin_` (metres, map frame) via IMapperBackend::insert_scan(); without,
+/// every point is one observation (occupied iff its intensity exceeds the map's threshold) via
+/// batch_update_iwlo(). Points are taken as they are stored (map frame). Non-finite points are
+/// skipped and counted by the map.
+template <typename PointT>
+void integrate_cloud(IMapperBackend& map, const pcl::PointCloud<PointT>& cloud, const pcl::Indices* indices,
+                     bool ray_casting, double max_range) {
+  Eigen::MatrixXd points;
+  Eigen::VectorXd intensities;
+  cloud_to_matrices(cloud, indices, map.get_params().intensity_max, points, intensities);
+  if (points.rows() == 0) return;
   if (ray_casting)
     map.insert_scan(cloud.sensor_origin_.template head<3>().template cast<double>(), points, intensities, max_range);
   else
-    map.batch_update_iwlo(points, intensities, std::vector<bool>(n, true));
+    map.batch_update_iwlo(points, intensities, std::vector<bool>(static_cast<std::size_t>(points.rows()), true));
 }
 
 /// Writes the map's voxels with probability > \p min_probability into \p output as voxel centres

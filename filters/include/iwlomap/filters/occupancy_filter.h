@@ -78,6 +78,12 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   void setRayCasting(bool enabled) { ray_casting_ = enabled; }
   [[nodiscard]] bool getRayCasting() const { return ray_casting_; }
 
+  /// Threads the map may use to integrate a cloud (IMapperBackend::set_num_threads(): 1 by
+  /// default, 0 = all hardware threads); the map is identical whatever the count. Applied to the
+  /// map at the next filter(). Throws std::invalid_argument for a negative count.
+  void setNumThreads(int threads);
+  [[nodiscard]] int getNumThreads() const { return num_threads_; }
+
  protected:
   using pcl::Filter<PointT>::filter_name_;
   using pcl::Filter<PointT>::input_;
@@ -95,6 +101,8 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   bool params_pending_ = true;  // apply params_ to the map at the next filter()
   double max_range_ = -1.0;
   bool ray_casting_ = true;
+  int num_threads_ = 1;
+  bool threads_pending_ = false;  // apply num_threads_ to the map at the next filter()
 };
 
 }  // namespace iwlomap

@@ -66,14 +66,27 @@ void OccupancyFilter<PointT>::setMaxRange(double max_range) {
 }
 
 template <typename PointT>
+void OccupancyFilter<PointT>::setNumThreads(int threads) {
+  if (threads < 0)
+    throw std::invalid_argument("OccupancyFilter::setNumThreads: threads must be >= 0, got " + std::to_string(threads));
+  num_threads_ = threads;
+  threads_pending_ = true;
+}
+
+template <typename PointT>
 void OccupancyFilter<PointT>::ensureMap() {
   if (!map_) {
     map_ = std::make_shared<ProbabilityUpdater>(resolution_);
     params_pending_ = true;
+    threads_pending_ = true;
   }
   if (params_pending_) {
     map_->set_params(params_);
     params_pending_ = false;
+  }
+  if (threads_pending_) {
+    map_->set_num_threads(num_threads_);
+    threads_pending_ = false;
   }
 }
 

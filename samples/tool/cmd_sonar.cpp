@@ -1,0 +1,206 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// `iwlomap sonar`: map the pings of Oculus .raw files into one IWLO map and write its occupied voxels.
+
+#include "args.h"
+#include "cloud_io.h"
+#include "commands.h"
+#include "map_options.h"
+#include "progress.h"
+
+#include <iwlomap/filters/cloud_conversions.h>
+#include <iwlomap/oculus_reader.h>
+#include <iwlomap/sonar_image_projector.h>
+
+#include <Eigen/Geometry>
+
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <iostream>
+#include <optional>
+#include <sstream>
+#include <stdexcept>
+
+namespace iwlomap::tool {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+const char* kHelp = R"(usage: iwlomap sonar PINGS.raw... -o OUT.pcd|OUT.ply [--poses POSES.txt] [options]
+
+Maps imaging-sonar pings into one IWLO occupancy map and writes the occupied voxels (voxel
+centres, intensity = occupancy probability). PINGS.raw are files of Oculus SimplePingResult (v1)
+messages; their pings are taken in file order. Each ping becomes one observation per voxel: per
+beam, free space up to the first echo above --intensity-threshold beyond --min-range, spread over
+the vertical aperture, and an occupied arc (plus --band metres) at the echo.
+
+Sonar frame: +X forward, +Y right (positive bearings), +Z down.
+
+output:
+  -o, --output FILE         occupied voxels as .pcd or .ply (binary)
+  -q, --quiet               no summary, no progress bar
+
+poses:
+  --poses FILE              one sonar pose (sonar frame to map frame) per ping, in ping order;
+                            without it every ping is at the origin, in the sonar frame. One pose
+                            per line ('#' starts a comment, blank lines are skipped), either
+                              x y z roll pitch yaw         metres and degrees, R = Rz(yaw) Ry(pitch) Rx(roll)
+                              x y z qw qx qy qz            metres and a unit quaternion
+                              r11 r12 r13 x r21 r22 r23 y r31 r32 r33 z   a 3x4 row-major [R|t] (KITTI)
+
+sonar:
+  --aperture DEG            vertical aperture of the beams in degrees (default 20; the file does
+                            not record it: Oculus M-series heads have 12-20 degrees)
+  --min-range M             no evidence closer than M metres (default 0)
+  --max-range M             no evidence beyond M metres (default: each ping's range setting)
+  --stride V                range step of the samples along a beam, in voxels (default 0.5)
+  --elevation-spacing V     spacing of the samples across the aperture, in voxels (default 1)
+  --band M                  length of the occupied band after the first echo, metres (default 0)
+  --no-return free|nothing  a beam without echo: free water up to the max range (default), or
+                            no evidence
+  --intensity-threshold I is both the echo threshold of the projection and the map's threshold.
+  --no-rays does not apply: a sonar ping is always projected as above.
+)";
+
+// One pose per non-empty line; see kHelp for the three accepted forms.
+std::vector<Eigen::Isometry3d> read_poses(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw std::runtime_error("cannot open the pose file " + path);
+  std::vector<Eigen::Isometry3d> poses;
+  std::string line;
+  for (int number = 1; std::getline(in, line); ++number) {
+    if (const auto hash = line.find('#'); hash != std::string::npos) line.erase(hash);
+    std::istringstream s(line);
+    std::vector<double> v;
+    std::string word;
+    while (s >> word) {
+      char* end = nullptr;
+      const double d = std::strtod(word.c_str(), &end);
+      if (end != word.c_str() + word.size() || !std::isfinite(d))
+        throw std::runtime_error(path + ":" + std::to_string(number) + ": '" + word + "' is not a finite number");
+      v.push_back(d);
+    }
+    if (v.empty()) continue;
+    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+    if (v.size() == 6) {
+      const double deg = kPi / 180.0;
+      pose.linear() = (Eigen::AngleAxisd(v[5] * deg, Eigen::Vector3d::UnitZ()) *
+                       Eigen::AngleAxisd(v[4] * deg, Eigen::Vector3d::UnitY()) *
+                       Eigen::AngleAxisd(v[3] * deg, Eigen::Vector3d::UnitX()))
+                          .toRotationMatrix();
+      pose.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
+    } else if (v.size() == 7) {
+      const Eigen::Quaterniond q(v[3], v[4], v[5], v[6]);
+      if (std::abs(q.norm() - 1.0) > 1e-3)
+        throw std::runtime_error(path + ":" + std::to_string(number) + ": the quaternion's norm is " +
+                                 std::to_string(q.norm()) + ", not 1");
+      pose.linear() = q.normalized().toRotationMatrix();
+      pose.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
+    } else if (v.size() == 12) {
+      Eigen::Matrix3d r;
+      r << v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10];
+      if ((r.transpose() * r - Eigen::Matrix3d::Identity()).norm() > 1e-3 || r.determinant() < 0.0)
+        throw std::runtime_error(path + ":" + std::to_string(number) + ": the 3x3 part is not a rotation");
+      pose.linear() = r;
+      pose.translation() = Eigen::Vector3d(v[3], v[7], v[11]);
+    } else {
+      throw std::runtime_error(path + ":" + std::to_string(number) + ": " + std::to_string(v.size()) +
+                               " numbers; a pose has 6 (x y z roll pitch yaw), 7 (x y z qw qx qy qz) or 12 (3x4 [R|t])");
+    }
+    poses.push_back(pose);
+  }
+  return poses;
+}
+
+}  // namespace
+
+int run_sonar(const std::vector<std::string>& argv) {
+  auto value_opts = map_value_options();
+  value_opts.insert({"-o", "--output", "--poses", "--aperture", "--min-range", "--stride", "--elevation-spacing",
+                     "--band", "--no-return"});
+  auto flag_opts = map_flag_options();
+  flag_opts.erase("--no-rays");
+  flag_opts.insert({"-h", "--help", "-q", "--quiet"});
+  const Args args(argv, value_opts, flag_opts);
+  if (args.flag("-h") || args.flag("--help")) {
+    std::cout << kHelp << map_options_help();
+    return 0;
+  }
+  const auto& inputs = args.positional();
+  if (inputs.empty()) throw UsageError("no input file (PINGS.raw)");
+  const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
+  if (!output) throw UsageError("no output file (-o OUT.pcd)");
+  if (extension(*output) != ".pcd" && extension(*output) != ".ply")
+    throw UsageError("the output must end in .pcd or .ply, got '" + *output + "'");
+  const bool quiet = args.flag("-q") || args.flag("--quiet");
+
+  const MapSetup setup = map_setup_from(args);
+  SonarProjectorParams params;
+  params.intensity_threshold = setup.params.intensity_threshold;
+  params.free_sample_stride = args.number("--stride", params.free_sample_stride);
+  params.elevation_sample_spacing = args.number("--elevation-spacing", params.elevation_sample_spacing);
+  params.occupied_band = args.number("--band", params.occupied_band);
+  const std::string no_return = args.value("--no-return").value_or("free");
+  if (no_return == "free")
+    params.no_return = SonarNoReturn::kFreeToMaxRange;
+  else if (no_return == "nothing")
+    params.no_return = SonarNoReturn::kNothing;
+  else
+    throw UsageError("--no-return must be free or nothing, got '" + no_return + "'");
+  const double aperture_deg = args.number("--aperture", 20.0);
+  if (!(aperture_deg >= 0.0 && aperture_deg < 180.0))
+    throw UsageError("--aperture must be in [0, 180) degrees, got " + std::to_string(aperture_deg));
+  const double min_range = args.number("--min-range", 0.0);
+  const std::optional<double> max_range = args.number("--max-range");
+  std::optional<SonarImageProjector> projector;
+  try {
+    projector.emplace(setup.map->get_resolution(), params);
+  } catch (const std::invalid_argument& e) {
+    throw UsageError(e.what());
+  }
+
+  const auto started = std::chrono::steady_clock::now();
+  std::vector<OculusPing> pings;
+  for (const std::string& input : inputs) {
+    std::vector<OculusPing> more = read_oculus_pings(input);
+    for (OculusPing& p : more) pings.push_back(std::move(p));
+  }
+  std::vector<Eigen::Isometry3d> poses(pings.size(), Eigen::Isometry3d::Identity());
+  if (const auto pose_file = args.value("--poses")) {
+    poses = read_poses(*pose_file);
+    if (poses.size() != pings.size())
+      throw std::runtime_error(*pose_file + " has " + std::to_string(poses.size()) + " poses for " +
+                               std::to_string(pings.size()) + " pings; one pose per ping is needed");
+  }
+
+  std::size_t observations = 0, with_return = 0, beams = 0;
+  {
+    Progress progress("mapping", pings.size(), !quiet);
+    for (std::size_t i = 0; i < pings.size(); ++i) {
+      const OculusPing& ping = pings[i];
+      SonarGeometry geometry = ping.geometry(aperture_deg * kPi / 180.0, min_range);
+      if (max_range) geometry.max_range = *max_range;
+      const SonarObservations obs = projector->integrate(*setup.map, ping.image_view(), geometry, poses[i]);
+      observations += obs.size();
+      with_return += obs.beams_with_return;
+      beams += obs.beams_with_return + obs.beams_without_return;
+      progress.update(i + 1, "ping " + std::to_string(ping.ping_id));
+    }
+  }
+  pcl::PointCloud<pcl::PointXYZI> occupied;
+  occupied_to_cloud(*setup.map, setup.params.occupied_threshold, occupied);
+  save_cloud(*output, occupied);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+  if (!quiet) {
+    std::cout << "mapped " << pings.size() << " ping(s) from " << inputs.size() << " file(s): " << with_return << " of "
+              << beams << " beams with an echo, " << observations << " voxel observations at "
+              << setup.map->get_resolution() << " m, " << setup.map->get_backend_type()
+              << " backend: " << setup.map->get_num_nodes() << " known voxels, " << occupied.size()
+              << " occupied (p > " << setup.params.occupied_threshold << ") in " << seconds << " s\n"
+              << "wrote " << *output << "\n";
+  }
+  return 0;
+}
+
+}  // namespace iwlomap::tool
