@@ -4,6 +4,8 @@
 # bundled default input (a synthetic lidar scan of a courtyard) and maps it. Results go to out/:
 #   out/scan.pcd       the input scan (sensor origin in VIEWPOINT)
 #   out/occupied.pcd   the occupied voxels (centres, intensity = occupancy probability)
+#   out/map.bt         the map as an OctoMap file (octovis, RViz, OctoMap's tools)
+#   out/snapshot.png   a picture of the occupied voxels, rendered off screen
 # Pass your own .pcd/.ply files to map them instead: scripts/demo.sh FILE... (same options as
 # 'iwlomap map', e.g. --resolution 0.2 --sensor lidar --max-range 60).
 set -euo pipefail
@@ -16,5 +18,9 @@ if [ $# -eq 0 ]; then
   "$TOOL" generate -o out/scan.pcd
   set -- out/scan.pcd --resolution 0.1 --sensor lidar
 fi
-"$TOOL" map "$@" -o out/occupied.pcd
+# The snapshot is rendered off screen; VTK needs an X server, so a virtual one is used when
+# there is no display.
+RUN=()
+[ -n "${DISPLAY:-}" ] || RUN=(xvfb-run -a -s "-screen 0 1280x1024x24 -noreset")
+"${RUN[@]}" "$TOOL" map "$@" -o out/occupied.pcd --octomap out/map.bt --snapshot out/snapshot.png
 "$TOOL" info out/occupied.pcd

@@ -5,6 +5,7 @@
 #include "cloud_io.h"
 #include "commands.h"
 #include "map_options.h"
+#include "map_outputs.h"
 #include "progress.h"
 
 #include <iwlomap/async_mapper.h>
@@ -35,12 +36,12 @@ output:
 
 int run_map(const std::vector<std::string>& argv) {
   auto value_opts = map_value_options();
-  value_opts.insert({"-o", "--output"});
+  value_opts.insert({"-o", "--output", "--octomap", "--snapshot"});
   auto flag_opts = map_flag_options();
   flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async"});
   const Args args(argv, value_opts, flag_opts);
   if (args.flag("-h") || args.flag("--help")) {
-    std::cout << kHelp << map_options_help() << "  -q, --quiet               no summary, no progress bar\n";
+    std::cout << kHelp << map_outputs_help() << map_options_help() << "  -q, --quiet               no summary, no progress bar\n";
     return 0;
   }
   const auto& inputs = args.positional();
@@ -51,6 +52,7 @@ int run_map(const std::vector<std::string>& argv) {
     throw UsageError("the output must end in .pcd or .ply, got '" + *output + "'");
 
   const MapSetup setup = map_setup_from(args);
+  const MapOutputs extra = map_outputs_from(args);
   const bool async = args.flag("--async");
   if (async && !setup.ray_casting) throw UsageError("--async needs ray casting (drop --no-rays)");
   const auto started = std::chrono::steady_clock::now();
@@ -79,6 +81,7 @@ int run_map(const std::vector<std::string>& argv) {
   pcl::PointCloud<pcl::PointXYZI> occupied;
   occupied_to_cloud(*setup.map, setup.params.occupied_threshold, occupied);
   if (output) save_cloud(*output, occupied);
+  write_map_outputs(extra, *setup.map, setup.params.occupied_threshold);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
   if (!quiet) {
     std::cout << "mapped " << inputs.size() << " file(s), " << points << " points ("
@@ -86,7 +89,8 @@ int run_map(const std::vector<std::string>& argv) {
               << setup.map->get_backend_type() << " backend: " << setup.map->get_num_nodes() << " known voxels, "
               << occupied.size() << " occupied (p > " << setup.params.occupied_threshold << ") in " << seconds
               << " s\n";
-    if (output) std::cout << "wrote " << *output << "\n";
+    for (const auto& written : {output, extra.octomap, extra.snapshot})
+      if (written) std::cout << "wrote " << *written << "\n";
   }
   return 0;
 }

@@ -1,6 +1,10 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "map_options.h"
 
+#ifdef IWLOMAP_HAVE_OCTOMAP
+#include <iwlomap/octree_mapper.h>  // makes "OctoMap" available to make_backend()
+#endif
+
 #include <algorithm>
 #include <cctype>
 

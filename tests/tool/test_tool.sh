@@ -38,7 +38,7 @@ for cmd in map info generate; do
   check "help_$cmd" 0 "$TOOL" "$cmd" --help
   expect "help_${cmd}_usage" grep -q "usage: iwlomap $cmd" "$WORK/help_$cmd.out"
 done
-expect map_help_lists_every_option bash -c "for o in --threads --async --resolution --backend --tiles --max-range --no-rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
+expect map_help_lists_every_option bash -c "for o in --octomap --snapshot --threads --async --resolution --backend --tiles --max-range --no-rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
 
 check generate 0 "$TOOL" generate -o "$WORK/scan.pcd" --rings 16 --columns 256
 check info 0 "$TOOL" info "$WORK/scan.pcd"
@@ -52,6 +52,26 @@ check pcl_pcd2ply_opens_output 0 pcl_pcd2ply "$WORK/occupied.pcd" "$WORK/occupie
 expect pcl_ply_nonempty test -s "$WORK/occupied_from_pcl.ply"
 n_pcd=$(grep -a -m1 '^POINTS' "$WORK/occupied.pcd" | awk '{print $2}')
 expect map_found_occupied_voxels test "${n_pcd:-0}" -gt 100
+
+# OctoMap output opens in OctoMap's own tools.
+check map_octomap 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --octomap "$WORK/map.bt"
+check convert_octree_reads_bt 0 convert_octree "$WORK/map.bt" "$WORK/map_converted.ot"
+expect converted_ot_exists test -s "$WORK/map_converted.ot"
+check bad_octomap_ext 2 "$TOOL" map "$WORK/scan.pcd" --octomap "$WORK/map.txt"
+check backend_octomap 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --backend octomap -o "$WORK/occ_octomap.pcd"
+# Same voxels, maybe in another order: compare the sorted ASCII rows.
+sorted_rows() { pcl_convert_pcd_ascii_binary "$1" "$1.ascii.pcd" 0 >/dev/null && grep -E '^-?[0-9]' "$1.ascii.pcd" | sort; }
+expect octomap_backend_same_voxels bash -c "$(declare -f sorted_rows); diff <(sorted_rows '$WORK/occ_octomap.pcd') <(sorted_rows '$WORK/occupied.pcd') >/dev/null && test \$(sorted_rows '$WORK/occupied.pcd' | wc -l) -gt 100"
+
+# A snapshot needs an X display: with one (the suite runs under xvfb-run) a PNG, without one a
+# clear error before any mapping.
+if [ -n "${DISPLAY:-}" ]; then
+  check map_snapshot 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --snapshot "$WORK/map.png"
+  expect snapshot_is_png bash -c "head -c 8 '$WORK/map.png' | od -An -c | grep -q 'P   N   G'"
+fi
+check snapshot_without_display 1 env -u DISPLAY "$TOOL" map "$WORK/scan.pcd" --snapshot "$WORK/nodisplay.png"
+expect snapshot_error_says_xvfb grep -q "xvfb-run" "$WORK/snapshot_without_display.err"
+check bad_snapshot_ext 2 "$TOOL" map "$WORK/scan.pcd" --snapshot "$WORK/map.jpg"
 
 # Threads and the background integration give the same map.
 check map_threads_async 0 "$TOOL" map "$WORK/scan.pcd" "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --threads 3 --async -o "$WORK/occ_t3.pcd"

@@ -1,0 +1,64 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#include "map_outputs.h"
+
+#include "args.h"
+
+#include <stdexcept>
+
+#ifdef IWLOMAP_HAVE_OCTOMAP
+#include <iwlomap/octree_mapper.h>
+#endif
+#ifdef IWLOMAP_HAVE_VIEWER
+#include <iwlomap/viewer/snapshot_renderer.h>
+#endif
+
+namespace iwlomap::tool {
+
+const char* map_outputs_help() {
+  return R"(  --octomap FILE            also write the map as an OctoMap file: .bt (occupancy) or .ot (full
+                            log-odds), for octovis, RViz and OctoMap's tools
+  --snapshot FILE           also write a PNG snapshot of the occupied voxels (needs an X display;
+                            without a screen: xvfb-run -a -s "-screen 0 1280x1024x24 -noreset" ...)
+)";
+}
+
+MapOutputs map_outputs_from(const Args& args) {
+  MapOutputs out;
+  out.octomap = args.value("--octomap");
+  out.snapshot = args.value("--snapshot");
+  if (out.octomap) {
+    const std::string ext = extension(*out.octomap);
+    if (ext != ".bt" && ext != ".ot") throw UsageError("--octomap must end in .bt or .ot, got '" + *out.octomap + "'");
+#ifndef IWLOMAP_HAVE_OCTOMAP
+    throw std::runtime_error("--octomap: this build has no OctoMap layer (configure with IWLOMAP_WITH_OCTOMAP=ON)");
+#endif
+  }
+  if (out.snapshot) {
+    if (extension(*out.snapshot) != ".png") throw UsageError("--snapshot must end in .png, got '" + *out.snapshot + "'");
+#ifdef IWLOMAP_HAVE_VIEWER
+    viewer::SnapshotRenderer::check_display();  // fail now, not after a long mapping run
+#else
+    throw std::runtime_error("--snapshot: this build has no VTK viewer layer (configure with IWLOMAP_WITH_VIEWER=ON)");
+#endif
+  }
+  return out;
+}
+
+void write_map_outputs(const MapOutputs& outputs, IMapperBackend& map, double min_probability) {
+#ifdef IWLOMAP_HAVE_OCTOMAP
+  if (outputs.octomap) export_octomap(map, *outputs.octomap);
+#endif
+#ifdef IWLOMAP_HAVE_VIEWER
+  if (outputs.snapshot) {
+    viewer::SnapshotOptions options;
+    options.title = "iwlomap: " + std::to_string(map.get_occupied_voxels(min_probability).rows()) +
+                    " occupied voxels at " + std::to_string(map.get_resolution()).substr(0, 5) + " m";
+    viewer::SnapshotRenderer::render_png(map, options, *outputs.snapshot, min_probability);
+  }
+#endif
+  (void)outputs;
+  (void)map;
+  (void)min_probability;
+}
+
+}  // namespace iwlomap::tool

@@ -1,0 +1,30 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+// The optional outputs of a mapping command: an OctoMap file (.bt/.ot) and a PNG snapshot. Each
+// needs a layer (OctoMap, VTK) that a build may leave out; then the option fails with a clear error.
+
+#include <iwlomap/mapper_backend.h>
+
+#include <optional>
+#include <string>
+
+namespace iwlomap::tool {
+
+struct MapOutputs {
+  std::optional<std::string> octomap;   ///< .bt or .ot
+  std::optional<std::string> snapshot;  ///< .png
+};
+
+/// Reads --octomap and --snapshot and checks, before any work, that they can be written: the
+/// extensions, the layers of this build, and an X display for the snapshot. Throws UsageError or
+/// std::runtime_error.
+[[nodiscard]] MapOutputs map_outputs_from(const class Args& args);
+
+/// Writes the requested outputs of \p map (the snapshot shows voxels with p > \p min_probability).
+void write_map_outputs(const MapOutputs& outputs, IMapperBackend& map, double min_probability);
+
+/// Help lines for --octomap and --snapshot.
+[[nodiscard]] const char* map_outputs_help();
+
+}  // namespace iwlomap::tool
