@@ -38,8 +38,8 @@ namespace iwlomap {
 ///
 /// Not thread-safe: one thread at a time may call a mutating method; const methods may run
 /// concurrently with each other (the octree's derived data they refresh is guarded).
-/// Non-copyable, movable; a moved-from object throws std::logic_error from every method except
-/// destruction and assignment.
+/// Non-copyable, movable; a moved-from object throws std::logic_error from every method that reads
+/// or changes the map (get_backend_type() and the thread count still answer).
 class OctreeMapper final : public IMapperBackend {
  public:
   /// \param resolution     voxel edge in metres (> 0, finite)

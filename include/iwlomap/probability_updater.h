@@ -17,7 +17,8 @@ namespace iwlomap {
 ///
 /// Not thread-safe: one thread at a time may call a mutating method; const methods may run
 /// concurrently with each other. Non-copyable, movable; a moved-from object throws
-/// std::logic_error from every method except destruction and assignment.
+/// std::logic_error from every method that reads or changes the map (get_backend_type(), the
+/// thread count and the optional defaults of IMapperBackend still answer).
 class ProbabilityUpdater final : public IMapperBackend {
  public:
   /// \param resolution voxel edge in metres (> 0, finite); throws std::invalid_argument otherwise.
