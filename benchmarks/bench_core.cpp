@@ -1,0 +1,640 @@
+// SPDX-License-Identifier: BSD-3-Clause
+//
+// bench_core: the core engine (RAM backend, iwlomap::ProbabilityUpdater) against OctoMap's
+// OcTree, measured side by side in one run, single thread, on the same input.
+//
+//   (a) batch_update_iwlo  vs  OcTree::updateNode(point, 0.85f, lazy_eval=false) per point, into an
+//                              empty map and again into the map that now holds those voxels
+//   (b) insert_scan        vs  OcTree::insertPointCloud(cloud, origin, maxrange, lazy_eval=false,
+//                              discretize=false), synthetic 64 x 1024 scan, into an empty map
+//                              (first scan) and into a map that already holds the scan (steady state)
+//   (c) the same as (b) on a recorded Ouster OS-1-128 frame, max range 25 m, when the data exists
+//
+// Repetitions alternate iwlomap and OctoMap (and swap which goes first every repetition) so both
+// share the machine's noise; the tables report medians of wall-clock and of thread CPU time, after
+// one untimed warm-up round. Each repetition starts from freshly built maps; building and
+// destroying maps and converting the input to each library's own types are not timed. The
+// program ends with a voxel-by-voxel comparison of the two maps, so a speedup never comes from
+// doing less work. See docs/benchmarks.md for the figures and how to read them.
+//
+// Usage: bench_core [--reps N] [--resolution R] [--data DIR] [--quick]
+
+#include "iwlomap/iwlo.h"
+#include "iwlomap/probability_updater.h"
+#include "iwlomap/synthetic_scan.h"
+#include "iwlomap/voxel_key.h"
+
+#include <octomap/OcTree.h>
+#include <octomap/octomap.h>
+
+#include <Eigen/Core>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <ctime>
+#include <fstream>
+#include <functional>
+#include <optional>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <tuple>
+#include <utility>
+#include <vector>
+
+#ifndef IWLOMAP_BENCH_DATA_DIR
+#define IWLOMAP_BENCH_DATA_DIR "../shared/data"
+#endif
+#ifndef IWLOMAP_BENCH_OCTOMAP_VERSION
+#define IWLOMAP_BENCH_OCTOMAP_VERSION "unknown"
+#endif
+
+namespace {
+
+// OctoMap's default hit probability is 0.7, i.e. log-odds ln(0.7 / 0.3) = 0.847; 0.85 is that
+// increment, so updateNode() does the work of one occupied observation per point, as
+// batch_update_iwlo() does.
+constexpr float kOctomapHitLogOdds = 0.85f;
+constexpr double kOusterMaxRange = 25.0;
+constexpr double kTargetBatchSpeedup = 20.0;
+constexpr double kTargetScanSpeedup = 25.0;
+const char* const kOusterFrame = "ouster_os1_128_3frames/frame_000_world.pcd";
+
+struct Options {
+  int reps = 5;
+  double resolution = 0.1;
+  std::string data_dir = IWLOMAP_BENCH_DATA_DIR;
+  bool quick = false;
+};
+
+void print_usage(const char* argv0) {
+  std::printf(
+      "Usage: %s [--reps N] [--resolution R] [--data DIR] [--quick]\n"
+      "  --reps N        timed repetitions per measurement (default 5; the median is reported)\n"
+      "  --resolution R  voxel edge in metres for both libraries (default 0.1)\n"
+      "  --data DIR      folder holding %s (default %s)\n"
+      "  --quick         2 repetitions (a smoke run; figures are noisier)\n",
+      argv0, kOusterFrame, IWLOMAP_BENCH_DATA_DIR);
+}
+
+Options parse_options(int argc, char** argv) {
+  Options o;
+  bool reps_given = false;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto value = [&](const char* name) -> std::string {
+      if (i + 1 >= argc) throw std::invalid_argument(std::string(name) + " needs a value");
+      return argv[++i];
+    };
+    if (a == "--reps") {
+      const std::string v = value("--reps");
+      char* end = nullptr;
+      const long n = std::strtol(v.c_str(), &end, 10);
+      if (end == v.c_str() || *end != '\0' || n < 1 || n > 1000)
+        throw std::invalid_argument("--reps must be an integer in [1, 1000], got '" + v + "'");
+      o.reps = static_cast<int>(n);
+      reps_given = true;
+    } else if (a == "--resolution") {
+      const std::string v = value("--resolution");
+      char* end = nullptr;
+      const double r = std::strtod(v.c_str(), &end);
+      if (end == v.c_str() || *end != '\0' || !std::isfinite(r) || r <= 0.0)
+        throw std::invalid_argument("--resolution must be a positive number of metres, got '" + v + "'");
+      o.resolution = r;
+    } else if (a == "--data") {
+      o.data_dir = value("--data");
+    } else if (a == "--quick") {
+      o.quick = true;
+    } else if (a == "--help" || a == "-h") {
+      print_usage(argv[0]);
+      std::exit(0);
+    } else {
+      throw std::invalid_argument("unknown argument '" + a + "' (see --help)");
+    }
+  }
+  if (o.quick && !reps_given) o.reps = 2;
+  return o;
+}
+
+// ---- timing ------------------------------------------------------------------------------------
+
+using Clock = std::chrono::steady_clock;
+
+// Wall-clock time and the calling thread's CPU time (user + system, so page faults count). Both
+// libraries run single-threaded here, so on an idle machine the two agree; on a shared machine the
+// CPU time leaves out the time the thread waited for a core, and is the steadier figure.
+struct Stamp {
+  Clock::time_point wall;
+  double cpu_ns;
+};
+
+Stamp now() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return {Clock::now(), static_cast<double>(ts.tv_sec) * 1e9 + static_cast<double>(ts.tv_nsec)};
+}
+
+struct Sample {
+  double wall_ms = 0.0;
+  double cpu_ms = 0.0;
+};
+
+Sample elapsed(const Stamp& t0, const Stamp& t1) {
+  return {std::chrono::duration<double, std::milli>(t1.wall - t0.wall).count(), (t1.cpu_ns - t0.cpu_ns) * 1e-6};
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return std::nan("");
+  std::sort(v.begin(), v.end());
+  const std::size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+// (into an empty map, again into the map that now holds the same input)
+using TimePair = std::pair<Sample, Sample>;
+
+struct Row {
+  std::string name;
+  std::size_t points = 0;
+  std::vector<double> iw_ms, om_ms;          // wall clock
+  std::vector<double> iw_cpu_ms, om_cpu_ms;  // thread CPU time
+  [[nodiscard]] double iw() const { return median(iw_ms); }
+  [[nodiscard]] double om() const { return median(om_ms); }
+  [[nodiscard]] double speedup() const { return om() / iw(); }
+  [[nodiscard]] double iw_cpu() const { return median(iw_cpu_ms); }
+  [[nodiscard]] double om_cpu() const { return median(om_cpu_ms); }
+  [[nodiscard]] double cpu_speedup() const { return om_cpu() / iw_cpu(); }
+};
+
+// ---- input -------------------------------------------------------------------------------------
+
+// One scan in both libraries' native types, converted once, outside the timed regions.
+struct ScanInput {
+  std::string name;
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+  Eigen::MatrixXd points;  // N x 3
+  Eigen::VectorXd intensities;
+  double max_range = -1.0;
+  octomap::Pointcloud cloud;
+  octomap::point3d om_origin;
+  std::vector<octomap::point3d> om_points;
+  std::vector<bool> occupied_flags;  // all true: every point is a hit
+};
+
+ScanInput make_input(std::string name, const Eigen::Vector3d& origin, Eigen::MatrixXd points,
+                     Eigen::VectorXd intensities, double max_range) {
+  ScanInput in;
+  in.name = std::move(name);
+  in.origin = origin;
+  in.points = std::move(points);
+  in.intensities = std::move(intensities);
+  in.max_range = max_range;
+  const Eigen::Index n = in.points.rows();
+  in.cloud.reserve(static_cast<std::size_t>(n));
+  in.om_points.reserve(static_cast<std::size_t>(n));
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const octomap::point3d p(static_cast<float>(in.points(i, 0)), static_cast<float>(in.points(i, 1)),
+                             static_cast<float>(in.points(i, 2)));
+    in.cloud.push_back(p);
+    in.om_points.push_back(p);
+  }
+  in.om_origin = octomap::point3d(static_cast<float>(origin.x()), static_cast<float>(origin.y()),
+                                  static_cast<float>(origin.z()));
+  in.occupied_flags.assign(static_cast<std::size_t>(n), true);
+  return in;
+}
+
+// A binary PCD file with float32 fields x, y, z, intensity; VIEWPOINT gives the sensor origin.
+struct PcdCloud {
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+  Eigen::MatrixXd points;
+  Eigen::VectorXd intensities;
+  std::size_t non_finite = 0;  // points dropped because a coordinate or the intensity was not finite
+};
+
+PcdCloud read_pcd(const std::string& path) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) throw std::runtime_error("cannot open " + path);
+  std::vector<std::string> fields;
+  std::vector<int> sizes, counts;
+  std::vector<char> types;
+  long long points = -1, width = -1, height = 1;
+  std::vector<double> viewpoint;
+  std::string data;
+  std::string line;
+  while (data.empty() && std::getline(f, line)) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream ls(line);
+    std::string key;
+    ls >> key;
+    if (key == "FIELDS") {
+      for (std::string t; ls >> t;) fields.push_back(t);
+    } else if (key == "SIZE") {
+      for (int t; ls >> t;) sizes.push_back(t);
+    } else if (key == "TYPE") {
+      for (std::string t; ls >> t;) types.push_back(t.empty() ? '?' : t[0]);
+    } else if (key == "COUNT") {
+      for (int t; ls >> t;) counts.push_back(t);
+    } else if (key == "WIDTH") {
+      ls >> width;
+    } else if (key == "HEIGHT") {
+      ls >> height;
+    } else if (key == "POINTS") {
+      ls >> points;
+    } else if (key == "VIEWPOINT") {
+      for (double t; ls >> t;) viewpoint.push_back(t);
+    } else if (key == "DATA") {
+      ls >> data;
+    }
+  }
+  if (data.empty()) throw std::runtime_error(path + ": no DATA line in the PCD header");
+  if (data != "binary") throw std::runtime_error(path + ": DATA " + data + " is not supported (binary only)");
+  if (counts.empty()) counts.assign(fields.size(), 1);
+  if (fields.empty() || sizes.size() != fields.size() || types.size() != fields.size() ||
+      counts.size() != fields.size())
+    throw std::runtime_error(path + ": FIELDS, SIZE, TYPE and COUNT disagree in length");
+  if (points < 0) points = width * height;
+  if (points < 0) throw std::runtime_error(path + ": neither POINTS nor WIDTH/HEIGHT given");
+
+  std::size_t stride = 0;
+  int offset[4] = {-1, -1, -1, -1};
+  const char* wanted[4] = {"x", "y", "z", "intensity"};
+  for (std::size_t i = 0; i < fields.size(); ++i) {
+    for (int k = 0; k < 4; ++k) {
+      if (fields[i] == wanted[k]) {
+        if (types[i] != 'F' || sizes[i] != 4 || counts[i] != 1)
+          throw std::runtime_error(path + ": field " + fields[i] + " is not a single float32");
+        offset[k] = static_cast<int>(stride);
+      }
+    }
+    stride += static_cast<std::size_t>(sizes[i]) * static_cast<std::size_t>(counts[i]);
+  }
+  for (int k = 0; k < 4; ++k)
+    if (offset[k] < 0) throw std::runtime_error(path + ": no field '" + wanted[k] + "'");
+
+  std::vector<unsigned char> raw(static_cast<std::size_t>(points) * stride);
+  f.read(reinterpret_cast<char*>(raw.data()), static_cast<std::streamsize>(raw.size()));
+  if (static_cast<std::size_t>(f.gcount()) != raw.size())
+    throw std::runtime_error(path + ": truncated binary data (" + std::to_string(f.gcount()) + " of " +
+                             std::to_string(raw.size()) + " bytes)");
+
+  PcdCloud c;
+  if (viewpoint.size() >= 3) c.origin = Eigen::Vector3d(viewpoint[0], viewpoint[1], viewpoint[2]);
+  c.points.resize(points, 3);
+  c.intensities.resize(points);
+  Eigen::Index n = 0;
+  for (long long i = 0; i < points; ++i) {
+    float v[4];
+    for (int k = 0; k < 4; ++k)
+      std::memcpy(&v[k], raw.data() + static_cast<std::size_t>(i) * stride + static_cast<std::size_t>(offset[k]),
+                  sizeof(float));
+    if (!(std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]) && std::isfinite(v[3]))) {
+      ++c.non_finite;
+      continue;
+    }
+    c.points.row(n) << v[0], v[1], v[2];
+    c.intensities(n) = v[3];
+    ++n;
+  }
+  c.points.conservativeResize(n, 3);
+  c.intensities.conservativeResize(n);
+  return c;
+}
+
+// ---- the two engines ---------------------------------------------------------------------------
+
+// Lidar semantics (DESIGN.md section 3): intensity threshold 0, so every return is a hit whose
+// intensity only weights it, as every point is a hit in OctoMap. Everything else is the default.
+// One thread, explicitly: the comparison is single thread against single thread (OctoMap as Debian
+// ships it is built without OpenMP).
+iwlomap::ProbabilityUpdater make_iwlomap(double resolution) {
+  iwlomap::ProbabilityUpdater m(resolution);
+  iwlomap::IwloParams p;
+  p.intensity_threshold = 0.0;
+  m.set_params(p);
+  m.set_num_threads(1);
+  return m;
+}
+
+// OctoMap with its own defaults (hit 0.7, miss 0.4, clamping 0.1192 / 0.971).
+struct OctoMapTree {
+  octomap::OcTree tree;
+  explicit OctoMapTree(double resolution) : tree(resolution) {}
+};
+
+// Times the batch into an empty map and the same batch again into the map that now holds its
+// voxels (no allocation left to do: the update itself).
+TimePair time_iw_batch(double res, const ScanInput& in) {
+  auto m = make_iwlomap(res);
+  const Stamp t0 = now();
+  m.batch_update_iwlo(in.points, in.intensities, in.occupied_flags);
+  const Stamp t1 = now();
+  m.batch_update_iwlo(in.points, in.intensities, in.occupied_flags);
+  const Stamp t2 = now();
+  return {elapsed(t0, t1), elapsed(t1, t2)};
+}
+
+TimePair time_om_batch(double res, const ScanInput& in) {
+  OctoMapTree m(res);
+  const Stamp t0 = now();
+  for (const auto& p : in.om_points) m.tree.updateNode(p, kOctomapHitLogOdds, false);
+  const Stamp t1 = now();
+  for (const auto& p : in.om_points) m.tree.updateNode(p, kOctomapHitLogOdds, false);
+  const Stamp t2 = now();
+  return {elapsed(t0, t1), elapsed(t1, t2)};
+}
+
+// Times the first scan into an empty map and the same scan again into the map that now holds it.
+TimePair time_iw_scan(double res, const ScanInput& in) {
+  auto m = make_iwlomap(res);
+  const Stamp t0 = now();
+  m.insert_scan(in.origin, in.points, in.intensities, in.max_range);
+  const Stamp t1 = now();
+  m.insert_scan(in.origin, in.points, in.intensities, in.max_range);
+  const Stamp t2 = now();
+  return {elapsed(t0, t1), elapsed(t1, t2)};
+}
+
+TimePair time_om_scan(double res, const ScanInput& in) {
+  OctoMapTree m(res);
+  const Stamp t0 = now();
+  m.tree.insertPointCloud(in.cloud, in.om_origin, in.max_range, false, false);
+  const Stamp t1 = now();
+  m.tree.insertPointCloud(in.cloud, in.om_origin, in.max_range, false, false);
+  const Stamp t2 = now();
+  return {elapsed(t0, t1), elapsed(t1, t2)};
+}
+
+// ---- sanity: compare the two maps voxel by voxel -------------------------------------------------
+
+struct Agreement {
+  std::size_t iw_known = 0, iw_occupied = 0;
+  std::size_t om_known = 0, om_occupied = 0;  // finest-resolution voxels (pruned leaves expanded)
+  std::size_t om_leaves = 0, om_nodes = 0;
+  std::size_t both_known = 0, both_occupied = 0;
+  double iw_mb = 0.0, om_mb = 0.0;
+};
+
+Agreement compare_maps(const iwlomap::ProbabilityUpdater& iw, const octomap::OcTree& om) {
+  Agreement a;
+  const unsigned max_depth = om.getTreeDepth();
+  for (auto it = om.begin_leafs(), end = om.end_leafs(); it != end; ++it) {
+    const unsigned shift = max_depth - it.getDepth();
+    const std::size_t voxels = std::size_t{1} << (3 * shift);
+    ++a.om_leaves;
+    a.om_known += voxels;
+    if (om.isNodeOccupied(*it)) a.om_occupied += voxels;
+  }
+  a.om_nodes = om.size();
+  a.om_mb = static_cast<double>(om.memoryUsage()) / (1024.0 * 1024.0);
+  a.iw_mb = iw.get_memory_usage().memory_mb;
+
+  // OctoMap keys are floor(coordinate / resolution) + 32768, the same grid as iwlomap's keys, so
+  // voxels are matched by key, with no coordinate round trip.
+  // The key of the voxel [0, r) is the offset (tree_max_val is not public).
+  const int offset = static_cast<int>(om.coordToKey(0.5 * om.getResolution()));
+  iw.for_each_voxel([&](const iwlomap::VoxelKey& k, const iwlomap::VoxelState& s) {
+    ++a.iw_known;
+    const bool iw_occ = s.probability > 0.5;
+    if (iw_occ) ++a.iw_occupied;
+    const int x = k.x + offset, y = k.y + offset, z = k.z + offset;
+    if (x < 0 || y < 0 || z < 0 || x > 0xFFFF || y > 0xFFFF || z > 0xFFFF) return;
+    const octomap::OcTreeKey key(static_cast<octomap::key_type>(x), static_cast<octomap::key_type>(y),
+                                 static_cast<octomap::key_type>(z));
+    const octomap::OcTreeNode* node = om.search(key);
+    if (node == nullptr) return;
+    ++a.both_known;
+    if (iw_occ && om.isNodeOccupied(node)) ++a.both_occupied;
+  });
+  return a;
+}
+
+double jaccard(std::size_t a, std::size_t b, std::size_t both) {
+  const double uni = static_cast<double>(a) + static_cast<double>(b) - static_cast<double>(both);
+  return uni > 0.0 ? static_cast<double>(both) / uni : 1.0;
+}
+
+void print_agreement(const std::string& title, const Agreement& a) {
+  std::printf("  %s\n", title.c_str());
+  std::printf("    %-26s %14s %14s %10s %12s\n", "", "iwlomap", "OctoMap", "ratio", "same voxels");
+  std::printf("    %-26s %14zu %14zu %10.4f %11.3f%%\n", "known voxels", a.iw_known, a.om_known,
+              static_cast<double>(a.iw_known) / static_cast<double>(std::max<std::size_t>(a.om_known, 1)),
+              100.0 * jaccard(a.iw_known, a.om_known, a.both_known));
+  std::printf("    %-26s %14zu %14zu %10.4f %11.3f%%\n", "occupied voxels (p > 0.5)", a.iw_occupied,
+              a.om_occupied,
+              static_cast<double>(a.iw_occupied) / static_cast<double>(std::max<std::size_t>(a.om_occupied, 1)),
+              100.0 * jaccard(a.iw_occupied, a.om_occupied, a.both_occupied));
+  std::printf("    %-26s %14.1f %14.1f %10.4f\n", "memory (MiB)", a.iw_mb, a.om_mb, a.iw_mb / a.om_mb);
+  std::printf("    (OctoMap: %zu octree nodes, %zu leaves; 'same voxels' = |both| / |either|)\n", a.om_nodes,
+              a.om_leaves);
+}
+
+// ---- the measurements ---------------------------------------------------------------------------
+
+void progress(const Row& r, std::size_t i) {
+  std::printf("    %-40s rep %zu: iwlomap %9.2f ms (cpu %9.2f)   OctoMap %9.2f ms (cpu %9.2f)\n", r.name.c_str(),
+              i + 1, r.iw_ms[i], r.iw_cpu_ms[i], r.om_ms[i], r.om_cpu_ms[i]);
+  std::fflush(stdout);
+}
+
+// Runs one untimed warm-up round (first-touch page faults, caches), then o.reps timed rounds that
+// alternate which library goes first.
+std::pair<Row, Row> measure(const Options& o, const ScanInput& in, const std::string& first_name,
+                            const std::string& steady_name,
+                            const std::function<TimePair(double, const ScanInput&)>& iw_fn,
+                            const std::function<TimePair(double, const ScanInput&)>& om_fn) {
+  Row first, steady;
+  first.name = first_name;
+  steady.name = steady_name;
+  first.points = steady.points = static_cast<std::size_t>(in.points.rows());
+  (void)iw_fn(o.resolution, in);
+  (void)om_fn(o.resolution, in);
+  for (int i = 0; i < o.reps; ++i) {
+    TimePair iw, om;
+    if (i % 2 == 0) {
+      iw = iw_fn(o.resolution, in);
+      om = om_fn(o.resolution, in);
+    } else {
+      om = om_fn(o.resolution, in);
+      iw = iw_fn(o.resolution, in);
+    }
+    for (auto [row, iw_s, om_s] : {std::tuple<Row*, Sample, Sample>{&first, iw.first, om.first},
+                                   std::tuple<Row*, Sample, Sample>{&steady, iw.second, om.second}}) {
+      row->iw_ms.push_back(iw_s.wall_ms);
+      row->om_ms.push_back(om_s.wall_ms);
+      row->iw_cpu_ms.push_back(iw_s.cpu_ms);
+      row->om_cpu_ms.push_back(om_s.cpu_ms);
+    }
+    progress(first, static_cast<std::size_t>(i));
+    progress(steady, static_cast<std::size_t>(i));
+  }
+  return {first, steady};
+}
+
+std::pair<Row, Row> measure_batch(const Options& o, const ScanInput& in) {
+  return measure(o, in, "batch_update_iwlo / updateNode, empty", "batch_update_iwlo / updateNode, again",
+                 time_iw_batch, time_om_batch);
+}
+
+std::pair<Row, Row> measure_scan(const Options& o, const ScanInput& in) {
+  return measure(o, in, in.name + ", first scan", in.name + ", steady state", time_iw_scan, time_om_scan);
+}
+
+Agreement scan_agreement(const Options& o, const ScanInput& in) {
+  auto iw = make_iwlomap(o.resolution);
+  iw.insert_scan(in.origin, in.points, in.intensities, in.max_range);
+  OctoMapTree om(o.resolution);
+  om.tree.insertPointCloud(in.cloud, in.om_origin, in.max_range, false, false);
+  return compare_maps(iw, om.tree);
+}
+
+Agreement batch_agreement(const Options& o, const ScanInput& in) {
+  auto iw = make_iwlomap(o.resolution);
+  iw.batch_update_iwlo(in.points, in.intensities, in.occupied_flags);
+  OctoMapTree om(o.resolution);
+  for (const auto& p : in.om_points) om.tree.updateNode(p, kOctomapHitLogOdds, false);
+  return compare_maps(iw, om.tree);
+}
+
+std::string spread(const std::vector<double>& v) {
+  const auto [lo, hi] = std::minmax_element(v.begin(), v.end());
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.1f-%.1f", *lo, *hi);
+  return buf;
+}
+
+void print_table(const std::vector<Row>& rows) {
+  const std::string rule(117, '-');
+  std::printf("\nwall clock, median of the repetitions\n");
+  std::printf("%-40s %8s %11s %11s %14s %14s %9s\n", "comparison", "points", "iwlomap ms", "OctoMap ms",
+              "iwlomap Mpt/s", "OctoMap Mpt/s", "speedup");
+  std::printf("%s\n", rule.c_str());
+  for (const Row& r : rows) {
+    const double pts = static_cast<double>(r.points);
+    std::printf("%-40s %8zu %11.2f %11.2f %14.3f %14.3f %8.1fx\n", r.name.c_str(), r.points, r.iw(), r.om(),
+                pts / (r.iw() * 1e3), pts / (r.om() * 1e3), r.speedup());
+  }
+  std::printf("%s\n", rule.c_str());
+  std::printf("\nthread CPU time, median of the repetitions (less sensitive to other load on the machine)\n");
+  std::printf("%-40s %8s %11s %11s %14s %14s %9s\n", "comparison", "points", "iwlomap ms", "OctoMap ms",
+              "iwlomap Mpt/s", "OctoMap Mpt/s", "speedup");
+  std::printf("%s\n", rule.c_str());
+  for (const Row& r : rows) {
+    const double pts = static_cast<double>(r.points);
+    std::printf("%-40s %8zu %11.2f %11.2f %14.3f %14.3f %8.1fx\n", r.name.c_str(), r.points, r.iw_cpu(),
+                r.om_cpu(), pts / (r.iw_cpu() * 1e3), pts / (r.om_cpu() * 1e3), r.cpu_speedup());
+  }
+  std::printf("%s\n", rule.c_str());
+  std::printf("spread of the repetitions, wall clock (min-max ms):\n");
+  for (const Row& r : rows)
+    std::printf("  %-40s iwlomap %-18s OctoMap %s\n", r.name.c_str(), spread(r.iw_ms).c_str(),
+                spread(r.om_ms).c_str());
+}
+
+// The machine is shared; the load average says how much else ran during the measurements.
+std::string load_average() {
+  std::ifstream f("/proc/loadavg");
+  std::string a, b, c;
+  if (!(f >> a >> b >> c)) return "n/a";
+  return a + " " + b + " " + c;
+}
+
+const char* verdict(double speedup, double target) { return speedup >= target ? "met" : "NOT met"; }
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options o;
+  try {
+    o = parse_options(argc, argv);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "bench_core: %s\n", e.what());
+    return 2;
+  }
+
+  std::printf("bench_core: iwlomap core engine (RAM backend) vs OctoMap %s\n", IWLOMAP_BENCH_OCTOMAP_VERSION);
+  std::printf("  resolution %.3f m, %d repetition(s) per measurement (median reported), single thread\n",
+              o.resolution, o.reps);
+  std::printf("  compiler %s, %s\n", __VERSION__,
+#ifdef NDEBUG
+              "NDEBUG (optimised build)"
+#else
+              "WARNING: assertions enabled, not a Release build; figures are not representative"
+#endif
+  );
+  std::printf("  iwlomap: default IwloParams with intensity_threshold 0 (lidar: every return is a hit), 1 thread\n");
+  std::printf("  OctoMap: OcTree defaults (hit 0.7, miss 0.4); updateNode log-odds %+.2f per point; "
+              "insertPointCloud(lazy_eval=false, discretize=false)\n",
+              static_cast<double>(kOctomapHitLogOdds));
+  std::printf("  one untimed warm-up round per measurement; load average at start: %s\n\n", load_average().c_str());
+
+  std::vector<Row> rows;
+  try {
+    const iwlomap::SyntheticScan scan = iwlomap::make_synthetic_scan();
+    const ScanInput synthetic =
+        make_input("synthetic 64x1024", scan.origin, scan.points, scan.intensities, -1.0);
+    std::printf("synthetic scan: %lld points, origin (%.2f, %.2f, %.2f), no max range\n",
+                static_cast<long long>(synthetic.points.rows()), scan.origin.x(), scan.origin.y(), scan.origin.z());
+
+    std::printf("\n(a) batch_update_iwlo vs OcTree::updateNode, synthetic scan points\n");
+    const auto [batch, batch_again] = measure_batch(o, synthetic);
+    rows.push_back(batch);
+    rows.push_back(batch_again);
+
+    std::printf("\n(b) insert_scan vs OcTree::insertPointCloud, synthetic scan\n");
+    const auto [syn_first, syn_steady] = measure_scan(o, synthetic);
+    rows.push_back(syn_first);
+    rows.push_back(syn_steady);
+
+    std::printf("\n(c) insert_scan vs OcTree::insertPointCloud, recorded Ouster OS-1-128 frame\n");
+    std::optional<ScanInput> ouster;
+    const std::string pcd = o.data_dir + "/" + kOusterFrame;
+    if (!std::ifstream(pcd).good()) {
+      std::printf("    SKIPPED: %s not found (pass --data DIR to point at the data folder)\n", pcd.c_str());
+    } else {
+      PcdCloud c = read_pcd(pcd);
+      std::printf("    %s: %lld points (%zu non-finite dropped), origin (%.2f, %.2f, %.2f), max range %.0f m\n",
+                  pcd.c_str(), static_cast<long long>(c.points.rows()), c.non_finite, c.origin.x(), c.origin.y(),
+                  c.origin.z(), kOusterMaxRange);
+      ouster = make_input("Ouster frame 0, 25 m", c.origin, std::move(c.points), std::move(c.intensities),
+                          kOusterMaxRange);
+      const auto [ou_first, ou_steady] = measure_scan(o, *ouster);
+      rows.push_back(ou_first);
+      rows.push_back(ou_steady);
+    }
+
+    print_table(rows);
+    std::printf("load average at end: %s\n", load_average().c_str());
+
+    std::printf("\nsanity: both maps after one update from empty (voxels matched by key)\n");
+    print_agreement("(a) synthetic scan, batch_update_iwlo / updateNode per point", batch_agreement(o, synthetic));
+    print_agreement("(b) synthetic scan, insert_scan / insertPointCloud", scan_agreement(o, synthetic));
+    if (ouster) print_agreement("(c) Ouster frame 0, insert_scan / insertPointCloud, 25 m", scan_agreement(o, *ouster));
+
+    std::printf("\nsummary (resolution %.3f m, median of %d, single thread; speedup = OctoMap time / iwlomap "
+                "time):\n", o.resolution, o.reps);
+    auto line = [](const char* what, const char* vs, const Row& r, const char* label, double target) {
+      std::printf("%s speedup vs OctoMap %s: %.1fx wall, %.1fx CPU time (%s; target >= %.0fx: %s wall, %s CPU)\n",
+                  what, vs, r.speedup(), r.cpu_speedup(), label, target, verdict(r.speedup(), target),
+                  verdict(r.cpu_speedup(), target));
+    };
+    line("batch_update_iwlo", "updateNode", batch, "empty map", kTargetBatchSpeedup);
+    line("batch_update_iwlo", "updateNode", batch_again, "same batch again", kTargetBatchSpeedup);
+    line("insert_scan", "insertPointCloud", syn_first, "synthetic, first scan", kTargetScanSpeedup);
+    line("insert_scan", "insertPointCloud", syn_steady, "synthetic, steady state", kTargetScanSpeedup);
+    if (ouster) {
+      line("insert_scan", "insertPointCloud", rows[rows.size() - 2], "Ouster, first scan", kTargetScanSpeedup);
+      line("insert_scan", "insertPointCloud", rows[rows.size() - 1], "Ouster, steady state", kTargetScanSpeedup);
+    }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "bench_core: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}
