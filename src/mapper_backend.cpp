@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "iwlomap/mapper_backend.h"
 
+#include "iwlomap/outofcore_tile_mapper.h"
 #include "iwlomap/probability_updater.h"
 
 #include <algorithm>
@@ -30,6 +31,12 @@ struct Registry {
   Registry() {
     entries.emplace_back("RAM", [](double resolution, const BackendOptions&) {
       return std::unique_ptr<IMapperBackend>(std::make_unique<ProbabilityUpdater>(resolution));
+    });
+    entries.emplace_back("Disk", [](double resolution, const BackendOptions& o) {
+      if (o.directory.empty())
+        throw std::invalid_argument("iwlomap: the Disk backend needs BackendOptions::directory (the map directory), got an empty path");
+      return std::unique_ptr<IMapperBackend>(
+          std::make_unique<OutofcoreTileMapper>(o.directory, resolution, o.tile_size, o.cache_tiles));
     });
   }
   std::mutex mutex;

@@ -1,0 +1,174 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+/// \file
+/// OutofcoreTileMapper: the Disk backend, an IWLO map kept on disk in cubic tiles with a bounded
+/// cache of resident tiles, for maps larger than RAM.
+
+#include "iwlomap/mapper_backend.h"
+
+#include <cstddef>
+#include <memory>
+#include <stdexcept>
+#include <string>
+
+namespace iwlomap {
+
+/// A map directory or tile file that cannot be used. The message names the file; path() returns
+/// it alone, and kind() says what went wrong, so a caller can tell a full disk from a damaged map.
+class StorageError : public std::runtime_error {
+ public:
+  enum class Kind {
+    kIo,            ///< a read, write, rename, fsync or unlink failed (full disk, unwritable path, ...)
+    kCorrupt,       ///< a file is damaged: wrong magic, checksum mismatch, truncated, inconsistent
+    kNewerVersion,  ///< a file was written by a newer iwlomap (format version above this build's)
+    kLocked,        ///< another mapper (this process or another) has the directory open
+  };
+  StorageError(Kind kind, std::string path, const std::string& message);
+  [[nodiscard]] Kind kind() const noexcept { return kind_; }
+  /// The file or directory the error is about.
+  [[nodiscard]] const std::string& path() const noexcept { return path_; }
+
+ private:
+  Kind kind_;
+  std::string path_;
+};
+
+/// The out-of-core backend. Space is cut into cubic tiles of `tile_size` metres; each tile that
+/// holds a known voxel is one file `tile_<x>_<y>_<z>.iwt` of sparse 8^3 block records in the map
+/// directory, beside a small metadata file `iwlomap_map.meta` (format version, resolution, tile
+/// size) and a lock file `iwlomap_map.lock`. At most `cache_tiles` tiles are resident in RAM at
+/// once (least recently used ones are evicted; a tile being read for a query may come on top);
+/// updates go to resident tiles with exactly the RAM backend's math, so both backends give the
+/// same per-voxel log-odds and counts, bit for bit, for the same input.
+///
+/// Durability: a dirty tile is written when it is evicted and by flush(). Every tile is written to
+/// a temporary file in the map directory, fsync'ed, renamed over the old tile and the directory is
+/// fsync'ed, so a crash at any moment leaves each tile either in its previous or in its new state,
+/// never torn. Each tile holds a complete state: the observations of one call that fall in a tile
+/// are all applied before the tile can be evicted. The destructor flushes; it never throws, so a
+/// failure there is swallowed and the unwritten changes are lost while every file keeps its last
+/// complete state: call flush() first to see errors.
+///
+/// Reopening: a mapper constructed on an existing map directory continues that map with the same
+/// contents. The constructor reads the metadata and every tile header (not the whole tiles): a
+/// resolution or tile size other than the stored ones throws std::invalid_argument; a damaged
+/// header or a truncated tile throws StorageError (kCorrupt) naming the file; a file of a newer
+/// format throws StorageError (kNewerVersion). A tile's payload checksum is verified whenever the
+/// tile is read; a mismatch throws StorageError (kCorrupt) naming the file, and the tile is never
+/// replaced by an empty one: every later call that needs it throws the same way until the file is
+/// moved away or clear() is called. IWLO parameters and the skipped-point count belong to the
+/// object, not to the map: they are not stored, set them again after reopening.
+///
+/// I/O errors: a failed write (unwritable directory, full disk) throws StorageError (kIo) naming
+/// the tile; the previous file of that tile stays intact and the tile stays dirty in RAM, so a
+/// later flush() can still write it. Input errors (sizes, weights, keys) throw before anything
+/// changes, as in every backend. An update whose tiles fit in the cache loads them all before it
+/// changes any voxel, so a read or eviction error leaves the map unchanged; an update that spans
+/// more tiles than the cache is applied tile group by tile group, and an I/O error in a later group
+/// leaves the earlier groups applied (each tile either has all of the call's observations or none).
+///
+/// Thread safety: every public method locks one internal mutex (once per call, so once per batch),
+/// so calls from several threads are safe and serialised. The visitor of for_each_voxel() runs
+/// under that lock and must not call back into this mapper. set_num_threads() (a base-class
+/// setter) is not covered: set it before sharing the mapper; it sets the threads insert_scan() uses
+/// to cast rays (applying them is single-threaded). One directory can be open in one mapper at a
+/// time: a second mapper on it, in this or another process, throws StorageError (kLocked).
+///
+/// Non-copyable, movable; a moved-from object throws std::logic_error from every method except
+/// destruction and assignment. Moving is not synchronised: do not move a mapper other threads use.
+class OutofcoreTileMapper final : public IMapperBackend {
+ public:
+  /// Opens the map in \p directory (created, with its parents, when missing) or creates a new one.
+  /// \param directory   map directory (not empty)
+  /// \param resolution  voxel edge in metres (> 0, finite)
+  /// \param tile_size   tile edge in metres; tile_size / resolution must be a whole multiple of 8
+  ///                    voxels (one 8^3 block) between 8 and 8192 voxels, within 1e-9 relative
+  ///                    (the defaults give 200 voxels = 25 blocks)
+  /// \param cache_tiles resident tiles (>= 1)
+  /// Throws std::invalid_argument for an invalid argument or one that differs from the stored map,
+  /// StorageError for a directory or file that cannot be used (see the class comment).
+  explicit OutofcoreTileMapper(const std::string& directory, double resolution = 0.05, double tile_size = 10.0,
+                               size_t cache_tiles = 16);
+  /// Flushes; never throws (see the class comment).
+  ~OutofcoreTileMapper() override;
+  OutofcoreTileMapper(const OutofcoreTileMapper&) = delete;
+  OutofcoreTileMapper& operator=(const OutofcoreTileMapper&) = delete;
+  OutofcoreTileMapper(OutofcoreTileMapper&&) noexcept;
+  /// The map held before is flushed (errors swallowed, as by the destructor) and closed.
+  OutofcoreTileMapper& operator=(OutofcoreTileMapper&&) noexcept;
+
+  void batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                         const std::vector<bool>& is_occupied) override;
+  void batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                         const std::vector<bool>& is_occupied, const Eigen::VectorXd& weights) override;
+  void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                   const Eigen::VectorXd& intensities, double max_range = -1.0) override;
+
+  void set_iwlo_params(double sharpness, double decay_rate, double min_alpha, double L_min, double L_max) override;
+  void set_log_odds_params(double log_odds_occupied, double log_odds_free) override;
+  void set_intensity_params(double intensity_threshold, double intensity_max) override;
+  void set_adaptive_params(bool enabled, double threshold, double max_ratio) override;
+  void set_occupied_threshold(double threshold) override;
+  void set_params(const IwloParams& params) override;
+  [[nodiscard]] IwloParams get_params() const override;
+  void set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) override;
+
+  /// Covers every tile: resident tiles from RAM, the others streamed from disk one at a time
+  /// without entering the cache.
+  [[nodiscard]] Eigen::MatrixXd get_occupied_voxels(double min_probability = 0.5) override;
+  /// Loads the voxel's tile into the cache when it is on disk (which may evict and write another).
+  [[nodiscard]] std::optional<VoxelState> query(const Eigen::Vector3d& point) const override;
+  /// Every known voxel, tile by tile in (x, y, z) order of tile coordinates; tiles on disk are
+  /// streamed as in get_occupied_voxels().
+  void for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const override;
+
+  /// num_nodes counts the whole map; memory_mb counts what is resident (tiles, tile index, scratch
+  /// buffers); memory_efficiency = known voxels / allocated voxel slots of the resident tiles.
+  [[nodiscard]] MemoryStats get_memory_usage() const override;
+  [[nodiscard]] double get_resolution() const override;
+  /// Known voxels of the whole map, resident or on disk (kept as a running count: no I/O).
+  [[nodiscard]] size_t get_num_nodes() const override;
+  [[nodiscard]] size_t get_num_skipped_points() const override;
+  /// Forgets every voxel: drops the resident tiles, deletes the map's tile files (files in the
+  /// directory that are not this map's tiles are left alone) and keeps the metadata and parameters.
+  void clear() override;
+  [[nodiscard]] std::string get_backend_type() const override { return "Disk"; }
+
+  /// Writes every dirty resident tile. All of them are attempted; the first error is thrown after.
+  void flush() override;
+  /// Loads the tiles on disk that intersect the box [min_bound, max_bound] (metres), in (x, y, z)
+  /// order of tile coordinates, at most cache_tiles of them. Throws std::invalid_argument for a
+  /// non-finite bound or min > max on an axis.
+  void preload_region(const Eigen::Vector3d& min_bound, const Eigen::Vector3d& max_bound) override;
+  /// Bytes of the map's files on disk (tiles and metadata); unflushed changes are not counted.
+  [[nodiscard]] size_t get_disk_usage() const override;
+  /// Frees the scratch buffers and the empty blocks of resident tiles; returns the voxel slots
+  /// freed (known voxels are never removed).
+  size_t prune() override;
+  [[nodiscard]] bool supports_persistence() const override { return true; }
+
+  // ---- Disk-specific ----
+
+  /// The map directory.
+  [[nodiscard]] std::string get_directory() const;
+  /// Tile edge in metres as stored (tile_voxels * resolution is the exact extent).
+  [[nodiscard]] double get_tile_size() const;
+  /// Tile edge in voxels (a multiple of 8).
+  [[nodiscard]] size_t get_tile_voxels() const;
+  [[nodiscard]] size_t get_cache_tiles() const;
+  /// Tiles resident in RAM now (<= cache_tiles between calls).
+  [[nodiscard]] size_t get_num_resident_tiles() const;
+  /// Tiles of the map (resident or on disk).
+  [[nodiscard]] size_t get_num_tiles() const;
+  /// Largest number of tiles resident at once since construction (or the last clear()).
+  [[nodiscard]] size_t get_peak_resident_tiles() const;
+
+ private:
+  struct Impl;
+  Impl& impl();
+  const Impl& impl() const;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace iwlomap

@@ -1,0 +1,1122 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#include "iwlomap/outofcore_tile_mapper.h"
+
+#include "detail/absolute_log_odds.h"
+#include "detail/batch_input.h"
+#include "detail/block_grid.h"
+#include "detail/flat_key_map.h"
+#include "detail/param_setters.h"
+#include "detail/scan_scratch.h"
+#include "detail/tile_file.h"
+
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <exception>
+#include <filesystem>
+#include <limits>
+#include <mutex>
+#include <sstream>
+#include <unordered_map>
+#include <utility>
+
+namespace iwlomap {
+
+StorageError::StorageError(Kind kind, std::string path, const std::string& message)
+    : std::runtime_error(message), kind_(kind), path_(std::move(path)) {}
+
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr const char* kMetaName = "iwlomap_map.meta";
+constexpr const char* kLockName = "iwlomap_map.lock";
+constexpr const char* kMetaFirstLine = "iwlomap tile map";
+constexpr const char* kTilePrefix = "tile_";
+constexpr const char* kTileSuffix = ".iwt";
+constexpr const char* kTempSuffix = ".tmp";
+// Tiles above 8192 voxels (1024 blocks) per edge could hold more than 2^32 block records.
+constexpr std::uint32_t kMaxTileVoxels = 8192;
+
+std::string tile_file_name(const VoxelKey& t) {
+  return kTilePrefix + std::to_string(t.x) + "_" + std::to_string(t.y) + "_" + std::to_string(t.z) + kTileSuffix;
+}
+
+bool ends_with(const std::string& s, const std::string& suffix) {
+  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+// Strict: only the exact names tile_file_name() produces, so no other file is ever taken for a
+// tile (or deleted by clear()).
+bool parse_tile_file_name(const std::string& name, VoxelKey& t) {
+  if (name.rfind(kTilePrefix, 0) != 0 || !ends_with(name, kTileSuffix)) return false;
+  const std::string body = name.substr(5, name.size() - 5 - 4);
+  long v[3];
+  const char* p = body.c_str();
+  for (int i = 0; i < 3; ++i) {
+    char* end = nullptr;
+    errno = 0;
+    v[i] = std::strtol(p, &end, 10);
+    if (end == p || errno != 0 || v[i] < std::numeric_limits<std::int32_t>::min() ||
+        v[i] > std::numeric_limits<std::int32_t>::max())
+      return false;
+    p = end;
+    if (i < 2) {
+      if (*p != '_') return false;
+      ++p;
+    }
+  }
+  if (*p != '\0') return false;
+  t = {static_cast<std::int32_t>(v[0]), static_cast<std::int32_t>(v[1]), static_cast<std::int32_t>(v[2])};
+  return tile_file_name(t) == name;
+}
+
+std::uint32_t tile_voxels_for(double resolution, double tile_size) {
+  if (!(std::isfinite(tile_size) && tile_size > 0.0))
+    throw std::invalid_argument("iwlomap: tile_size must be finite and > 0, got " + detail::describe("tile_size", tile_size));
+  const double voxels = tile_size / resolution;
+  const double whole = std::round(voxels);
+  const bool integral = std::abs(voxels - whole) <= 1e-9 * std::max(1.0, whole);
+  const auto blocks = static_cast<long long>(whole) / detail::kBlockEdge;
+  if (!integral || whole < detail::kBlockEdge || whole > kMaxTileVoxels ||
+      static_cast<long long>(whole) % detail::kBlockEdge != 0) {
+    std::ostringstream s;
+    s.precision(17);
+    s << "iwlomap: tile_size / resolution must be a whole multiple of 8 voxels (one 8^3 block) between 8 and "
+      << kMaxTileVoxels << ", got tile_size = " << tile_size << " and resolution = " << resolution << " ("
+      << voxels << " voxels)";
+    if (blocks >= 1) s << "; e.g. tile_size = " << static_cast<double>(blocks * detail::kBlockEdge) * resolution;
+    throw std::invalid_argument(s.str());
+  }
+  return static_cast<std::uint32_t>(whole);
+}
+
+std::string hexfloat(double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%a", v);
+  return buf;
+}
+
+struct MapMeta {
+  std::uint32_t version = detail::kTileFormatVersion;
+  double resolution = 0.0;
+  double tile_size = 0.0;
+  std::uint32_t tile_voxels = 0;
+};
+
+std::vector<std::uint8_t> encode_meta(const MapMeta& m) {
+  std::ostringstream s;
+  s.precision(17);
+  s << kMetaFirstLine << "\n"
+    << "format_version " << m.version << "\n"
+    << "resolution " << hexfloat(m.resolution) << "\n"
+    << "tile_size " << hexfloat(m.tile_size) << "\n"
+    << "tile_voxels " << m.tile_voxels << "\n"
+    << "# resolution " << m.resolution << " m, tiles of " << m.tile_size << " m (" << m.tile_voxels
+    << " voxels); tiles are tile_<x>_<y>_<z>.iwt, see src/detail/tile_file.h\n";
+  const std::string text = s.str();
+  return {text.begin(), text.end()};
+}
+
+[[noreturn]] void throw_bad_meta(const std::string& path, const std::string& what) {
+  throw StorageError(StorageError::Kind::kCorrupt, path, "iwlomap: map metadata " + path + " is corrupt: " + what);
+}
+
+MapMeta parse_meta(const std::vector<std::uint8_t>& bytes, const std::string& path) {
+  std::istringstream in(std::string(bytes.begin(), bytes.end()));
+  std::string line;
+  if (!std::getline(in, line) || line != kMetaFirstLine) throw_bad_meta(path, "it does not start with '" + std::string(kMetaFirstLine) + "'");
+  MapMeta m;
+  bool have_version = false, have_res = false, have_size = false, have_voxels = false;
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    const auto space = line.find(' ');
+    if (space == std::string::npos) throw_bad_meta(path, "line '" + line + "' has no value");
+    const std::string key = line.substr(0, space);
+    const std::string value = line.substr(space + 1);
+    char* end = nullptr;
+    errno = 0;
+    if (key == "format_version" || key == "tile_voxels") {
+      const unsigned long v = std::strtoul(value.c_str(), &end, 10);
+      if (end == value.c_str() || *end != '\0' || errno != 0 || v > std::numeric_limits<std::uint32_t>::max())
+        throw_bad_meta(path, "bad " + key + " '" + value + "'");
+      (key == "format_version" ? m.version : m.tile_voxels) = static_cast<std::uint32_t>(v);
+      (key == "format_version" ? have_version : have_voxels) = true;
+    } else if (key == "resolution" || key == "tile_size") {
+      const double v = std::strtod(value.c_str(), &end);
+      if (end == value.c_str() || *end != '\0' || !std::isfinite(v) || v <= 0.0)
+        throw_bad_meta(path, "bad " + key + " '" + value + "'");
+      (key == "resolution" ? m.resolution : m.tile_size) = v;
+      (key == "resolution" ? have_res : have_size) = true;
+    }
+    // Other keys are ignored: a later minor version may add informative ones.
+  }
+  if (!have_version) throw_bad_meta(path, "format_version is missing");
+  if (m.version > detail::kTileFormatVersion)
+    throw StorageError(StorageError::Kind::kNewerVersion, path,
+                       "iwlomap: map metadata " + path + " has format version " + std::to_string(m.version) +
+                           ", newer than the version " + std::to_string(detail::kTileFormatVersion) +
+                           " this build reads; open the map with a newer iwlomap");
+  if (m.version == 0) throw_bad_meta(path, "format_version 0");
+  if (!have_res || !have_size || !have_voxels) throw_bad_meta(path, "resolution, tile_size or tile_voxels is missing");
+  return m;
+}
+
+// Tiles are resident (with their grid) or only on disk; the index below knows both.
+struct Tile {
+  explicit Tile(const VoxelKey& k) : key(k) {}
+  VoxelKey key;
+  detail::BlockGrid grid;
+  std::size_t known = 0;
+  bool dirty = false;
+  bool pinned = false;  // needed by the call in progress: never evicted
+  std::uint64_t last_used = 0;
+};
+
+// A tile's files: the committed tile_<x>_<y>_<z>.iwt, and possibly a staged
+// tile_<x>_<y>_<z>.iwt.tmp holding a newer complete state that an eviction wrote without fsync;
+// flush() makes staged files durable and renames them over the committed ones. A crash discards
+// the staged files (the next open deletes them), so committed tiles only ever change at a flush.
+struct TileInfo {
+  Tile* resident = nullptr;
+  bool committed = false;
+  bool staged = false;
+  bool staged_synced = false;        // the staged file was fsync'ed when written
+  std::uint64_t committed_bytes = 0;
+  std::uint64_t staged_bytes = 0;
+  std::size_t file_known = 0;        // known voxels in the newest file (staged, else committed)
+  [[nodiscard]] bool on_disk() const noexcept { return committed || staged; }
+  [[nodiscard]] std::uint64_t bytes() const noexcept {
+    return (committed ? committed_bytes : 0) + (staged ? staged_bytes : 0);
+  }
+};
+
+// Items (observations, voxels) of one call sorted by tile, stable, so that each tile is loaded
+// once per call and every voxel sees its observations in call order.
+struct Routing {
+  std::vector<VoxelKey> slot_tiles;  // tile coordinate of each slot
+  detail::FlatKeyMap slot_index;     // tile coordinate -> slot
+  std::vector<std::uint32_t> slot_of;
+  std::vector<std::uint32_t> order;
+  std::vector<std::size_t> begin;  // slot s owns order[begin[s], begin[s + 1])
+
+  void reset() {
+    slot_tiles.clear();
+    slot_index.clear_keep_capacity();
+  }
+  std::uint32_t slot(const VoxelKey& tile) {
+    const auto next = static_cast<std::uint32_t>(slot_tiles.size());
+    const std::uint32_t s = slot_index.insert(tile, next);
+    if (s == next) slot_tiles.push_back(tile);
+    return s;
+  }
+  [[nodiscard]] std::size_t bytes() const noexcept {
+    return slot_tiles.capacity() * sizeof(VoxelKey) + slot_index.bytes() +
+           (slot_of.capacity() + order.capacity()) * sizeof(std::uint32_t) + begin.capacity() * sizeof(std::size_t);
+  }
+};
+
+}  // namespace
+
+struct OutofcoreTileMapper::Impl {
+  Impl(const std::string& directory, double res, double tile, std::size_t cache)
+      : dir(directory), resolution(res), tile_size(tile), cache_tiles(cache) {}
+
+  ~Impl() {
+    // The destructor's contract: flush, never throw. Every file keeps its last complete state.
+    try {
+      flush();
+    } catch (...) {
+    }
+    if (lock_fd >= 0) ::close(lock_fd);
+  }
+  Impl(const Impl&) = delete;
+  Impl& operator=(const Impl&) = delete;
+
+  // ---- paths and geometry ----
+
+  [[nodiscard]] std::string path_of(const std::string& name) const { return (fs::path(dir) / name).string(); }
+  [[nodiscard]] std::string tile_path(const VoxelKey& t) const { return path_of(tile_file_name(t)); }
+
+  [[nodiscard]] VoxelKey tile_of_voxel(const VoxelKey& k) const noexcept {
+    const auto e = static_cast<std::int32_t>(tile_voxels);
+    return {detail::floor_div(k.x, e), detail::floor_div(k.y, e), detail::floor_div(k.z, e)};
+  }
+  [[nodiscard]] VoxelKey tile_of_block(const VoxelKey& b) const noexcept {
+    return {detail::floor_div(b.x, tile_blocks), detail::floor_div(b.y, tile_blocks), detail::floor_div(b.z, tile_blocks)};
+  }
+
+  // ---- opening ----
+
+  void open() {
+    tile_voxels = tile_voxels_for(resolution, tile_size);
+    tile_blocks = static_cast<std::int32_t>(tile_voxels / detail::kBlockEdge);
+    std::error_code ec;
+    fs::create_directories(dir, ec);
+    if (ec || !fs::is_directory(dir))
+      throw StorageError(StorageError::Kind::kIo, dir,
+                         "iwlomap: cannot use " + dir + " as a map directory: " +
+                             (ec ? ec.message() : std::string("it exists and is not a directory")));
+    lock_directory();
+    const std::string meta_path = path_of(kMetaName);
+    std::vector<std::string> tile_names, temp_names;
+    for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+      std::error_code type_ec;
+      if (!it->is_regular_file(type_ec)) continue;  // a directory named like a tile is not ours
+      const std::string name = it->path().filename().string();
+      VoxelKey t;
+      if (parse_tile_file_name(name, t))
+        tile_names.push_back(name);
+      else if (ends_with(name, kTempSuffix) &&
+               (name == std::string(kMetaName) + kTempSuffix ||
+                parse_tile_file_name(name.substr(0, name.size() - 4), t)))
+        temp_names.push_back(name);
+    }
+    if (ec) throw StorageError(StorageError::Kind::kIo, dir, "iwlomap: cannot list map directory " + dir + ": " + ec.message());
+    std::sort(tile_names.begin(), tile_names.end());
+
+    if (fs::exists(meta_path, ec)) {
+      std::uint64_t size = 0;
+      const MapMeta m = parse_meta(detail::read_file_prefix(meta_path, 1 << 16, size), meta_path);
+      meta_bytes = size;
+      if (m.resolution != resolution || m.tile_size != tile_size || m.tile_voxels != tile_voxels) {
+        std::ostringstream s;
+        s.precision(17);
+        s << "iwlomap: the map in " << dir << " was created with resolution = " << m.resolution
+          << " and tile_size = " << m.tile_size << ", not resolution = " << resolution
+          << " and tile_size = " << tile_size << "; open it with the stored values";
+        throw std::invalid_argument(s.str());
+      }
+    } else {
+      if (!tile_names.empty())
+        throw StorageError(StorageError::Kind::kCorrupt, meta_path,
+                           "iwlomap: " + dir + " holds tile files (" + tile_names.front() + ", ...) but no map metadata " +
+                               meta_path + "; its resolution and tile size are unknown");
+      MapMeta m;
+      m.resolution = resolution;
+      m.tile_size = tile_size;
+      m.tile_voxels = tile_voxels;
+      const std::vector<std::uint8_t> bytes = encode_meta(m);
+      detail::write_file_durably(meta_path + kTempSuffix, meta_path, bytes);
+      detail::sync_directory(dir);
+      meta_bytes = bytes.size();
+    }
+    for (const std::string& name : tile_names) {
+      VoxelKey t;
+      (void)parse_tile_file_name(name, t);
+      const std::string path = path_of(name);
+      std::uint64_t size = 0;
+      const std::vector<std::uint8_t> head = detail::read_file_prefix(path, detail::kTileHeaderBytes, size);
+      const detail::TileHeader h =
+          detail::parse_tile_header(head.data(), head.size(), size, resolution, tile_voxels, t, path);
+      TileInfo& info = tiles[t];
+      info.committed = true;
+      info.committed_bytes = size;
+      info.file_known = static_cast<std::size_t>(h.known_voxels);
+      total_known += info.file_known;
+      disk_bytes_total += size;
+    }
+    // Staged tiles and writes interrupted by a crash: never committed, not necessarily complete on
+    // disk (no fsync), and always ours. Removed only once every tile checked out, so that an open
+    // that fails changes no file.
+    for (const std::string& name : temp_names) detail::remove_file(path_of(name));
+  }
+
+  void lock_directory() {
+    const std::string path = path_of(kLockName);
+    lock_fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+    if (lock_fd < 0)
+      throw StorageError(StorageError::Kind::kIo, path, "iwlomap: cannot create lock file " + path + ": " + std::strerror(errno));
+    int r;
+    do r = ::flock(lock_fd, LOCK_EX | LOCK_NB);
+    while (r != 0 && errno == EINTR);
+    if (r != 0) {
+      const int err = errno;
+      ::close(lock_fd);
+      lock_fd = -1;
+      if (err == EWOULDBLOCK)
+        throw StorageError(StorageError::Kind::kLocked, dir,
+                           "iwlomap: the map directory " + dir + " is already open in another mapper (this process or another)");
+      throw StorageError(StorageError::Kind::kIo, path, "iwlomap: cannot lock " + path + ": " + std::strerror(err));
+    }
+  }
+
+  // ---- the cache ----
+
+  void touch(Tile& t) { t.last_used = ++tick; }
+
+  // The newest file of a tile: staged, else committed.
+  [[nodiscard]] std::string newest_path(const VoxelKey& key, const TileInfo& info) const {
+    return info.staged ? tile_path(key) + kTempSuffix : tile_path(key);
+  }
+
+  // Reads and fully checks the newest file of a tile. Nothing changes when it throws.
+  std::unique_ptr<Tile> read_tile(const VoxelKey& key, const TileInfo& info) {
+    const std::string path = newest_path(key, info);
+    const std::vector<std::uint8_t> bytes = detail::read_file(path);
+    const detail::TileHeader h =
+        detail::parse_tile_header(bytes.data(), bytes.size(), bytes.size(), resolution, tile_voxels, key, path);
+    auto tile = std::make_unique<Tile>(key);
+    auto scratch = std::make_unique<detail::VoxelBlock>(VoxelKey{});
+    detail::decode_tile(bytes, h, tile_voxels, path, *scratch, [&](const detail::VoxelBlock& b) {
+      detail::VoxelBlock& dst = tile->grid.get_or_create(b.key);
+      dst.voxels = b.voxels;
+      dst.known = b.known;
+    });
+    tile->known = static_cast<std::size_t>(h.known_voxels);
+    return tile;
+  }
+
+  // Writes a dirty tile to its staged file (fsync'ed when \p sync). On failure the staged file is
+  // gone (write_temp_file() removes it) and the tile stays dirty: RAM holds its newest state.
+  void stage_tile(Tile& t, TileInfo& info, bool sync) {
+    const std::string path = tile_path(t.key);
+    (void)detail::encode_tile(t.grid, resolution, tile_voxels, t.key, io_buffer);
+    disk_bytes_total -= info.bytes();
+    info.staged = false;
+    try {
+      detail::write_temp_file(path + kTempSuffix, path, io_buffer, sync);
+    } catch (...) {
+      disk_bytes_total += info.bytes();
+      throw;
+    }
+    info.staged = true;
+    info.staged_synced = sync;
+    info.staged_bytes = io_buffer.size();
+    info.file_known = t.known;
+    disk_bytes_total += info.bytes();
+    t.dirty = false;
+  }
+
+  // Makes a staged file the committed tile (fsync unless done, rename). The directory entry is
+  // made durable by the caller (dir_sync_pending).
+  void commit_tile(const VoxelKey& key, TileInfo& info) {
+    const std::string path = tile_path(key);
+    detail::commit_temp_file(path + kTempSuffix, path, info.staged_synced);
+    disk_bytes_total -= info.bytes();
+    info.committed = true;
+    info.committed_bytes = info.staged_bytes;
+    info.staged = false;
+    disk_bytes_total += info.bytes();
+    dir_sync_pending = true;
+  }
+
+  // Evicts least recently used unpinned tiles until one more fits. A dirty tile that cannot be
+  // written stays resident and dirty, and the error propagates.
+  void make_room() {
+    while (resident.size() >= cache_tiles) {
+      std::size_t victim = resident.size();
+      for (std::size_t i = 0; i < resident.size(); ++i)
+        if (!resident[i]->pinned && (victim == resident.size() || resident[i]->last_used < resident[victim]->last_used))
+          victim = i;
+      if (victim == resident.size()) throw std::logic_error("iwlomap: every resident tile is pinned");
+      Tile& t = *resident[victim];
+      TileInfo& info = tiles.at(t.key);
+      if (t.dirty) stage_tile(t, info, false);  // no fsync: flush() makes it durable
+      info.resident = nullptr;
+      if (!info.on_disk()) tiles.erase(t.key);  // an empty tile that was never written
+      resident.erase(resident.begin() + static_cast<std::ptrdiff_t>(victim));
+    }
+  }
+
+  Tile& insert_resident(std::unique_ptr<Tile> tile, TileInfo& info) {
+    tile->pinned = true;
+    touch(*tile);
+    info.resident = tile.get();
+    resident.push_back(std::move(tile));
+    peak_resident = std::max(peak_resident, resident.size());
+    return *resident.back();
+  }
+
+  // Makes the tiles \p keys (at most cache_tiles, distinct) resident and pinned; out[i] is keys[i]'s
+  // tile. Tiles on disk are read (and checked) before any new tile is created, so a corrupt tile
+  // makes the call fail before a voxel changes.
+  void make_resident(const std::vector<VoxelKey>& keys, std::vector<Tile*>& out) {
+    out.assign(keys.size(), nullptr);
+    for (std::size_t i = 0; i < keys.size(); ++i) {
+      const auto it = tiles.find(keys[i]);
+      if (it != tiles.end() && it->second.resident != nullptr) {
+        out[i] = it->second.resident;
+        out[i]->pinned = true;
+        touch(*out[i]);
+      }
+    }
+    for (std::size_t i = 0; i < keys.size(); ++i) {
+      if (out[i] != nullptr) continue;
+      const auto it = tiles.find(keys[i]);
+      if (it == tiles.end()) continue;
+      std::unique_ptr<Tile> tile = read_tile(keys[i], it->second);
+      // The file may have changed since the header was read at open: keep the count exact.
+      total_known = total_known - it->second.file_known + tile->known;
+      it->second.file_known = tile->known;
+      make_room();
+      out[i] = &insert_resident(std::move(tile), tiles.at(keys[i]));
+    }
+    for (std::size_t i = 0; i < keys.size(); ++i) {
+      if (out[i] != nullptr) continue;
+      make_room();
+      out[i] = &insert_resident(std::make_unique<Tile>(keys[i]), tiles[keys[i]]);
+    }
+  }
+
+  void unpin_all() noexcept {
+    for (auto& t : resident) t->pinned = false;
+  }
+
+  // Unpins on every exit path of a call.
+  struct PinScope {
+    explicit PinScope(Impl& m) : m_(m) {}
+    ~PinScope() { m_.unpin_all(); }
+    PinScope(const PinScope&) = delete;
+    PinScope& operator=(const PinScope&) = delete;
+    Impl& m_;
+  };
+
+  // Splits the slots of routing into groups of at most cache_tiles, resident tiles first so that a
+  // call never evicts a tile it needs later. Calls fn(group slots, their tiles) per group.
+  template <class Fn>
+  void for_each_group(Fn&& fn) {
+    const std::size_t n = routing.slot_tiles.size();
+    std::vector<std::uint32_t> slots(n);
+    for (std::uint32_t s = 0; s < n; ++s) slots[s] = s;
+    std::stable_partition(slots.begin(), slots.end(), [&](std::uint32_t s) {
+      const auto it = tiles.find(routing.slot_tiles[s]);
+      return it != tiles.end() && it->second.resident != nullptr;
+    });
+    std::vector<VoxelKey> keys;
+    std::vector<Tile*> group_tiles;
+    for (std::size_t first = 0; first < n; first += cache_tiles) {
+      const std::size_t last = std::min(n, first + cache_tiles);
+      keys.clear();
+      for (std::size_t i = first; i < last; ++i) keys.push_back(routing.slot_tiles[slots[i]]);
+      PinScope pins(*this);
+      make_resident(keys, group_tiles);
+      fn(slots.data() + first, group_tiles.data(), last - first);
+    }
+  }
+
+  // Sorts items 0..n-1 by tile (stable). voxel_key(i) gives item i's voxel key.
+  template <class KeyOf>
+  void route(std::size_t n, KeyOf&& voxel_key) {
+    routing.reset();
+    routing.slot_of.resize(n);
+    const std::int64_t e = tile_voxels;
+    std::int64_t lo[3] = {0, 0, 0};
+    std::uint32_t last = detail::FlatKeyMap::kEmpty;
+    for (std::size_t i = 0; i < n; ++i) {
+      const VoxelKey k = voxel_key(i);
+      if (last == detail::FlatKeyMap::kEmpty || k.x < lo[0] || k.x >= lo[0] + e || k.y < lo[1] || k.y >= lo[1] + e ||
+          k.z < lo[2] || k.z >= lo[2] + e) {
+        const VoxelKey t = tile_of_voxel(k);
+        last = routing.slot(t);
+        lo[0] = t.x * e;
+        lo[1] = t.y * e;
+        lo[2] = t.z * e;
+      }
+      routing.slot_of[i] = last;
+    }
+    const std::size_t slots = routing.slot_tiles.size();
+    routing.begin.assign(slots + 1, 0);
+    for (std::size_t i = 0; i < n; ++i) ++routing.begin[routing.slot_of[i] + 1];
+    for (std::size_t s = 0; s < slots; ++s) routing.begin[s + 1] += routing.begin[s];
+    routing.order.resize(n);
+    std::vector<std::size_t> next(routing.begin.begin(), routing.begin.end() - 1);
+    for (std::size_t i = 0; i < n; ++i) routing.order[next[routing.slot_of[i]]++] = static_cast<std::uint32_t>(i);
+  }
+
+  // ---- updates ----
+
+  void count_new(Tile& t, detail::VoxelBlock& b) {
+    ++b.known;
+    ++t.known;
+    ++total_known;
+  }
+
+  // The observations order[from, to) of the batch, all in tile \p t, in order. Two passes as in
+  // the RAM backend: resolve every voxel (allocating blocks), then update with the voxel of a
+  // later observation prefetched.
+  void apply_observations(Tile& t, std::size_t from, std::size_t to) {
+    detail::BlockAccessor acc(t.grid);
+    targets.resize(to - from);
+    for (std::size_t j = from; j < to; ++j) {
+      const detail::Observation& o = batch[routing.order[j]];
+      detail::VoxelBlock& b = acc.block(detail::block_of(o.key));
+      targets[j - from] = {&b, &b.voxels[static_cast<std::size_t>(detail::index_in_block(o.key))]};
+    }
+    constexpr std::size_t kAhead = 16;
+    const std::size_t n = to - from;
+    for (std::size_t j = 0; j < n; ++j) {
+      if (j + kAhead < n) __builtin_prefetch(targets[j + kAhead].second, 1);
+      const detail::Observation& o = batch[routing.order[from + j]];
+      detail::Voxel& v = *targets[j].second;
+      if (v.count == 0) count_new(t, *targets[j].first);
+      iwlo::apply_observation(v.log_odds, v.count, o.intensity, o.occupied_flag, o.weight, updater);
+    }
+    t.dirty = true;
+  }
+
+  void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                   const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights) {
+    const std::size_t skip = detail::prepare_batch(points, intensities, is_occupied, weights, resolution, batch);
+    route(batch.size(), [&](std::size_t i) { return batch[i].key; });
+    for_each_group([&](const std::uint32_t* slots, Tile* const* group, std::size_t count) {
+      for (std::size_t g = 0; g < count; ++g)
+        apply_observations(*group[g], routing.begin[slots[g]], routing.begin[slots[g] + 1]);
+    });
+    skipped += skip;
+  }
+
+  void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                   double max_range, int threads) {
+    detail::check_scan_input(origin, points, intensities, max_range, resolution);
+    const std::size_t skip = scratch.collect(origin, points, intensities, max_range, resolution, threads);
+
+    // Which tiles the scan touches, and which scratch chunks hold each tile's free voxels (a
+    // 32^3 chunk may straddle tiles). Hits are routed like batch observations.
+    const std::size_t chunks = scratch.num_chunks();
+    const std::vector<detail::ScanScratch::Hit>& hits = scratch.hits();
+    route(hits.size(), [&](std::size_t i) { return hits[i].key; });
+    const auto grow_lists = [&] {
+      const std::size_t slots = routing.slot_tiles.size();
+      if (slot_chunks.size() < slots) slot_chunks.resize(slots);
+      if (slot_last_chunk.size() < slots) slot_last_chunk.resize(slots);
+    };
+    grow_lists();
+    for (std::size_t s = 0; s < routing.slot_tiles.size(); ++s) {
+      slot_chunks[s].clear();
+      slot_last_chunk[s] = kNoChunk;
+    }
+    for (std::size_t ci = 0; ci < chunks; ++ci) {
+      VoxelKey last_block{};
+      bool first = true;
+      scratch.for_each_free(ci, ci + 1, [&](const VoxelKey& block_key, int) {
+        if (!first && block_key == last_block) return;
+        first = false;
+        last_block = block_key;
+        const std::size_t before = routing.slot_tiles.size();
+        const std::uint32_t s = routing.slot(tile_of_block(block_key));
+        if (routing.slot_tiles.size() != before) {
+          grow_lists();
+          slot_chunks[s].clear();
+          slot_last_chunk[s] = kNoChunk;
+        }
+        if (slot_last_chunk[s] != ci) {
+          slot_chunks[s].push_back(ci);
+          slot_last_chunk[s] = ci;
+        }
+      });
+    }
+    // Slots added by free voxels own no hits.
+    routing.begin.resize(routing.slot_tiles.size() + 1, routing.begin.back());
+
+    const std::size_t slots = routing.slot_tiles.size();
+    slot_group.assign(slots, kNoGroup);
+    slot_tile.assign(slots, nullptr);
+    std::size_t group_id = 0;
+    for_each_group([&](const std::uint32_t* group_slots, Tile* const* group, std::size_t count) {
+      ++group_id;
+      for (std::size_t g = 0; g < count; ++g) {
+        slot_group[group_slots[g]] = group_id;
+        slot_tile[group_slots[g]] = group[g];
+      }
+      Tile* tile = nullptr;
+      detail::VoxelBlock* block = nullptr;
+      VoxelKey block_key_cached{};
+      bool have_block = false;
+      const auto apply_free = [&](const VoxelKey& block_key, int index) {
+        if (!have_block || block_key != block_key_cached) {
+          have_block = true;
+          block_key_cached = block_key;
+          const std::uint32_t s = routing.slot_index.find(tile_of_block(block_key));
+          tile = slot_group[s] == group_id ? slot_tile[s] : nullptr;
+          block = tile != nullptr ? &tile->grid.get_or_create(block_key) : nullptr;
+        }
+        if (block == nullptr) return;
+        detail::Voxel& v = block->voxels[static_cast<std::size_t>(index)];
+        if (v.count == 0) count_new(*tile, *block);
+        iwlo::apply_observation(v.log_odds, v.count, 0.0, false, 1.0, updater);
+      };
+      if (count == slots) {
+        scratch.for_each_free(0, chunks, apply_free);
+      } else {
+        group_chunks.clear();
+        for (std::size_t g = 0; g < count; ++g)
+          group_chunks.insert(group_chunks.end(), slot_chunks[group_slots[g]].begin(), slot_chunks[group_slots[g]].end());
+        std::sort(group_chunks.begin(), group_chunks.end());
+        group_chunks.erase(std::unique(group_chunks.begin(), group_chunks.end()), group_chunks.end());
+        for (const std::size_t ci : group_chunks) scratch.for_each_free(ci, ci + 1, apply_free);
+      }
+      for (std::size_t g = 0; g < count; ++g) {
+        Tile& t = *group[g];
+        detail::BlockAccessor acc(t.grid);
+        const std::uint32_t s = group_slots[g];
+        for (std::size_t j = routing.begin[s]; j < routing.begin[s + 1]; ++j) {
+          const detail::ScanScratch::Hit& h = hits[routing.order[j]];
+          detail::VoxelBlock& b = acc.block(detail::block_of(h.key));
+          detail::Voxel& v = b.voxels[static_cast<std::size_t>(detail::index_in_block(h.key))];
+          if (v.count == 0) count_new(t, b);
+          iwlo::apply_observation(v.log_odds, v.count, h.intensity, true, 1.0, updater);
+        }
+        t.dirty = true;
+      }
+    });
+    skipped += skip;
+  }
+
+  void set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) {
+    std::vector<detail::AbsoluteLogOdds> values;
+    const std::size_t skip = detail::prepare_log_odds(points, log_odds, updater.params(), resolution, values);
+    route(values.size(), [&](std::size_t i) { return values[i].key; });
+    for_each_group([&](const std::uint32_t* slots, Tile* const* group, std::size_t count) {
+      for (std::size_t g = 0; g < count; ++g) {
+        Tile& t = *group[g];
+        detail::BlockAccessor acc(t.grid);
+        for (std::size_t j = routing.begin[slots[g]]; j < routing.begin[slots[g] + 1]; ++j) {
+          const detail::AbsoluteLogOdds& a = values[routing.order[j]];
+          detail::VoxelBlock& b = acc.block(detail::block_of(a.key));
+          detail::Voxel& v = b.voxels[static_cast<std::size_t>(detail::index_in_block(a.key))];
+          if (v.count == 0) {
+            count_new(t, b);
+            v.count = 1;
+          }
+          v.log_odds = a.log_odds;
+        }
+        t.dirty = true;
+      }
+    });
+    skipped += skip;
+  }
+
+  // ---- reading the whole map ----
+
+  // Calls fn(const VoxelBlock&) for every block of every tile, tiles in key order: resident ones
+  // from RAM, the others read one at a time and dropped (the cache is left as it is).
+  template <class Fn>
+  void for_each_block(Fn&& fn) {
+    std::vector<VoxelKey> keys;
+    keys.reserve(tiles.size());
+    for (const auto& [k, info] : tiles) keys.push_back(k);
+    std::sort(keys.begin(), keys.end());
+    std::unique_ptr<detail::VoxelBlock> scratch_block;
+    for (const VoxelKey& k : keys) {
+      const TileInfo& info = tiles.at(k);
+      if (info.resident != nullptr) {
+        for (const auto& b : info.resident->grid.blocks())
+          if (b->known > 0) fn(static_cast<const detail::VoxelBlock&>(*b));
+        continue;
+      }
+      const std::string path = newest_path(k, info);
+      const std::vector<std::uint8_t> bytes = detail::read_file(path);
+      const detail::TileHeader h =
+          detail::parse_tile_header(bytes.data(), bytes.size(), bytes.size(), resolution, tile_voxels, k, path);
+      if (h.known_voxels != info.file_known)
+        detail::throw_corrupt(path, "it holds " + std::to_string(h.known_voxels) + " voxels, " +
+                                        std::to_string(info.file_known) + " when last written or read (changed by another program?)");
+      if (!scratch_block) scratch_block = std::make_unique<detail::VoxelBlock>(VoxelKey{});
+      detail::decode_tile(bytes, h, tile_voxels, path, *scratch_block, fn);
+    }
+  }
+
+  // ---- flush and clear ----
+
+  // Dirty resident tiles are written (with fsync) to their staged files, then every staged file is
+  // committed, then the directory is fsync'ed once. Every tile is attempted; the first error is
+  // rethrown at the end, and a tile that failed keeps its state (dirty in RAM, or staged) for a
+  // later flush.
+  void flush() {
+    std::exception_ptr first_error;
+    std::vector<Tile*> dirty;
+    for (auto& t : resident)
+      if (t->dirty) dirty.push_back(t.get());
+    std::sort(dirty.begin(), dirty.end(), [](const Tile* a, const Tile* b) { return a->key < b->key; });
+    for (Tile* t : dirty) {
+      try {
+        stage_tile(*t, tiles.at(t->key), true);
+      } catch (...) {
+        if (!first_error) first_error = std::current_exception();
+      }
+    }
+    std::vector<VoxelKey> staged;
+    for (const auto& [k, info] : tiles)
+      if (info.staged) staged.push_back(k);
+    std::sort(staged.begin(), staged.end());
+    for (const VoxelKey& k : staged) {
+      try {
+        commit_tile(k, tiles.at(k));
+      } catch (...) {
+        if (!first_error) first_error = std::current_exception();
+      }
+    }
+    if (dir_sync_pending) {
+      detail::sync_directory(dir);
+      dir_sync_pending = false;
+    }
+    if (first_error) std::rethrow_exception(first_error);
+  }
+
+  void clear() {
+    for (auto& t : resident) tiles.at(t->key).resident = nullptr;
+    resident.clear();
+    std::exception_ptr first_error;
+    for (auto it = tiles.begin(); it != tiles.end();) {
+      TileInfo& info = it->second;
+      try {
+        // The staged file first: if the committed one then cannot go, the tile is simply its
+        // committed state again.
+        if (info.staged) {
+          detail::remove_file(tile_path(it->first) + kTempSuffix);
+          info.staged = false;
+          info.file_known = info.committed ? committed_known(it->first) : 0;
+        }
+        if (info.committed) detail::remove_file(tile_path(it->first));
+      } catch (...) {
+        if (!first_error) first_error = std::current_exception();
+        ++it;
+        continue;  // still on disk: it stays in the index with its file's contents
+      }
+      it = tiles.erase(it);
+    }
+    total_known = 0;
+    disk_bytes_total = 0;
+    for (const auto& [k, info] : tiles) {
+      total_known += info.file_known;
+      disk_bytes_total += info.bytes();
+    }
+    skipped = 0;
+    peak_resident = 0;
+    scratch.release();
+    batch = {};
+    targets = {};
+    io_buffer = {};
+    detail::sync_directory(dir);
+    dir_sync_pending = false;
+    if (first_error) std::rethrow_exception(first_error);
+  }
+
+  // Known voxels of a committed file, from its header (0 when it cannot be read: the next read of
+  // the tile reports the problem).
+  std::size_t committed_known(const VoxelKey& key) {
+    try {
+      const std::string path = tile_path(key);
+      std::uint64_t size = 0;
+      const std::vector<std::uint8_t> head = detail::read_file_prefix(path, detail::kTileHeaderBytes, size);
+      return static_cast<std::size_t>(
+          detail::parse_tile_header(head.data(), head.size(), size, resolution, tile_voxels, key, path).known_voxels);
+    } catch (const std::exception&) {
+      return 0;
+    }
+  }
+
+  static constexpr std::size_t kNoChunk = static_cast<std::size_t>(-1);
+  static constexpr std::size_t kNoGroup = 0;
+
+  std::string dir;
+  double resolution;
+  double tile_size;
+  std::size_t cache_tiles;
+  std::uint32_t tile_voxels = 0;
+  std::int32_t tile_blocks = 0;
+  int lock_fd = -1;
+
+  iwlo::Updater updater;
+  std::unordered_map<VoxelKey, TileInfo, VoxelKeyHash> tiles;  // every tile of the map
+  std::vector<std::unique_ptr<Tile>> resident;                 // the cache
+  std::uint64_t tick = 0;
+  std::size_t total_known = 0;
+  std::size_t skipped = 0;
+  std::uint64_t disk_bytes_total = 0;
+  std::uint64_t meta_bytes = 0;
+  std::size_t peak_resident = 0;
+  bool dir_sync_pending = false;  // renames since the last directory fsync
+
+  // Buffers reused between calls.
+  detail::ScanScratch scratch;
+  std::vector<detail::Observation> batch;
+  std::vector<std::pair<detail::VoxelBlock*, detail::Voxel*>> targets;
+  Routing routing;
+  std::vector<std::vector<std::size_t>> slot_chunks;
+  std::vector<std::size_t> slot_last_chunk;
+  std::vector<std::size_t> slot_group;
+  std::vector<Tile*> slot_tile;
+  std::vector<std::size_t> group_chunks;
+  std::vector<std::uint8_t> io_buffer;
+
+  mutable std::mutex mutex;
+};
+
+// ---- public methods: each takes the lock once ----
+
+OutofcoreTileMapper::OutofcoreTileMapper(const std::string& directory, double resolution, double tile_size,
+                                         size_t cache_tiles) {
+  if (directory.empty()) throw std::invalid_argument("iwlomap: OutofcoreTileMapper needs a map directory, got an empty path");
+  detail::check_resolution(resolution);
+  if (cache_tiles < 1) throw std::invalid_argument("iwlomap: cache_tiles must be >= 1, got cache_tiles = 0");
+  auto m = std::make_unique<Impl>(directory, resolution, tile_size, cache_tiles);
+  m->open();
+  impl_ = std::move(m);
+}
+
+OutofcoreTileMapper::~OutofcoreTileMapper() = default;
+OutofcoreTileMapper::OutofcoreTileMapper(OutofcoreTileMapper&&) noexcept = default;
+OutofcoreTileMapper& OutofcoreTileMapper::operator=(OutofcoreTileMapper&&) noexcept = default;
+
+OutofcoreTileMapper::Impl& OutofcoreTileMapper::impl() {
+  if (!impl_) throw std::logic_error("iwlomap: OutofcoreTileMapper used after it was moved from");
+  return *impl_;
+}
+const OutofcoreTileMapper::Impl& OutofcoreTileMapper::impl() const {
+  if (!impl_) throw std::logic_error("iwlomap: OutofcoreTileMapper used after it was moved from");
+  return *impl_;
+}
+
+void OutofcoreTileMapper::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                                            const std::vector<bool>& is_occupied) {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.apply_batch(points, intensities, is_occupied, nullptr);
+}
+
+void OutofcoreTileMapper::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                                            const std::vector<bool>& is_occupied, const Eigen::VectorXd& weights) {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.apply_batch(points, intensities, is_occupied, &weights);
+}
+
+void OutofcoreTileMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                                      const Eigen::VectorXd& intensities, double max_range) {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.insert_scan(origin, points, intensities, max_range, get_num_threads());
+}
+
+void OutofcoreTileMapper::set_iwlo_params(double sharpness, double decay_rate, double min_alpha, double L_min,
+                                          double L_max) {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.updater = iwlo::Updater(detail::with_iwlo(m.updater.params(), sharpness, decay_rate, min_alpha, L_min, L_max));
+}
+void OutofcoreTileMapper::set_log_odds_params(double log_odds_occupied, double log_odds_free) {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.updater = iwlo::Updater(detail::with_log_odds(m.updater.params(), log_odds_occupied, log_odds_free));
+}
+void OutofcoreTileMapper::set_intensity_params(double intensity_threshold, double intensity_max) {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.updater = iwlo::Updater(detail::with_intensity(m.updater.params(), intensity_threshold, intensity_max));
+}
+void OutofcoreTileMapper::set_adaptive_params(bool enabled, double threshold, double max_ratio) {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.updater = iwlo::Updater(detail::with_adaptive(m.updater.params(), enabled, threshold, max_ratio));
+}
+void OutofcoreTileMapper::set_occupied_threshold(double threshold) {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.updater = iwlo::Updater(detail::with_occupied_threshold(m.updater.params(), threshold));
+}
+void OutofcoreTileMapper::set_params(const IwloParams& params) {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.updater = iwlo::Updater(params);
+}
+IwloParams OutofcoreTileMapper::get_params() const {
+  const Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  return m.updater.params();
+}
+
+void OutofcoreTileMapper::set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.set_log_odds(points, log_odds);
+}
+
+Eigen::MatrixXd OutofcoreTileMapper::get_occupied_voxels(double min_probability) {
+  const double threshold = detail::resolve_min_probability(min_probability);
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  std::vector<double> rows;
+  m.for_each_block([&](const detail::VoxelBlock& b) {
+    for (int i = 0; i < detail::kBlockVoxels; ++i) {
+      const detail::Voxel& v = b.voxels[static_cast<std::size_t>(i)];
+      if (v.count == 0) continue;
+      const double p = iwlo::probability(v.log_odds);
+      if (!(p > threshold)) continue;
+      const Eigen::Vector3d c = key_to_center(detail::voxel_of(b.key, i), m.resolution);
+      rows.insert(rows.end(), {c.x(), c.y(), c.z(), p});
+    }
+  });
+  return detail::rows_to_matrix(rows);
+}
+
+std::optional<VoxelState> OutofcoreTileMapper::query(const Eigen::Vector3d& point) const {
+  // The cache is not part of the observable state: a query may load a tile into it, so it works
+  // on the non-const Impl (impl() only checks for a moved-from object).
+  (void)impl();
+  Impl& m = *impl_;
+  const VoxelKey key = world_to_key_checked(point, m.resolution);
+  std::lock_guard<std::mutex> lock(m.mutex);
+  const VoxelKey tile_key = m.tile_of_voxel(key);
+  const auto it = m.tiles.find(tile_key);
+  if (it == m.tiles.end()) return std::nullopt;
+  Tile* tile = it->second.resident;
+  if (tile == nullptr) {
+    std::vector<Tile*> out;
+    Impl::PinScope pins(m);
+    m.make_resident({tile_key}, out);
+    tile = out[0];
+  } else {
+    m.touch(*tile);
+  }
+  const detail::VoxelBlock* b = tile->grid.find(detail::block_of(key));
+  if (b == nullptr) return std::nullopt;
+  const detail::Voxel& v = b->voxels[static_cast<std::size_t>(detail::index_in_block(key))];
+  if (v.count == 0) return std::nullopt;
+  return VoxelState{v.log_odds, iwlo::probability(v.log_odds), v.count};
+}
+
+void OutofcoreTileMapper::for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const {
+  (void)impl();
+  Impl& m = *impl_;
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.for_each_block([&](const detail::VoxelBlock& b) {
+    for (int i = 0; i < detail::kBlockVoxels; ++i) {
+      const detail::Voxel& v = b.voxels[static_cast<std::size_t>(i)];
+      if (v.count == 0) continue;
+      visit(detail::voxel_of(b.key, i), VoxelState{v.log_odds, iwlo::probability(v.log_odds), v.count});
+    }
+  });
+}
+
+MemoryStats OutofcoreTileMapper::get_memory_usage() const {
+  const Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  std::size_t bytes = sizeof(Impl) + m.scratch.bytes() + m.batch.capacity() * sizeof(detail::Observation) +
+                      m.targets.capacity() * sizeof(m.targets[0]) + m.routing.bytes() + m.io_buffer.capacity() +
+                      m.resident.capacity() * sizeof(m.resident[0]);
+  // The index: a node per tile (key, info, next pointer, cached hash) and the bucket array.
+  bytes += m.tiles.size() * (sizeof(std::pair<const VoxelKey, TileInfo>) + 2 * sizeof(void*)) +
+           m.tiles.bucket_count() * sizeof(void*);
+  std::size_t slots = 0, resident_known = 0;
+  for (const auto& t : m.resident) {
+    bytes += sizeof(Tile) + t->grid.bytes();
+    slots += t->grid.num_blocks() * detail::kBlockVoxels;
+    resident_known += t->known;
+  }
+  return MemoryStats{m.total_known, m.total_known, static_cast<double>(bytes) / (1024.0 * 1024.0),
+                     slots == 0 ? 0.0 : static_cast<double>(resident_known) / static_cast<double>(slots)};
+}
+
+double OutofcoreTileMapper::get_resolution() const { return impl().resolution; }
+
+size_t OutofcoreTileMapper::get_num_nodes() const {
+  const Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  return m.total_known;
+}
+
+size_t OutofcoreTileMapper::get_num_skipped_points() const {
+  const Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  return m.skipped;
+}
+
+void OutofcoreTileMapper::clear() {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.clear();
+}
+
+void OutofcoreTileMapper::flush() {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.flush();
+}
+
+void OutofcoreTileMapper::preload_region(const Eigen::Vector3d& min_bound, const Eigen::Vector3d& max_bound) {
+  if (!min_bound.allFinite() || !max_bound.allFinite())
+    throw std::invalid_argument("iwlomap: preload_region needs finite bounds, got min (" + std::to_string(min_bound.x()) +
+                                ", " + std::to_string(min_bound.y()) + ", " + std::to_string(min_bound.z()) + ") max (" +
+                                std::to_string(max_bound.x()) + ", " + std::to_string(max_bound.y()) + ", " +
+                                std::to_string(max_bound.z()) + ")");
+  for (int a = 0; a < 3; ++a)
+    if (min_bound[a] > max_bound[a])
+      throw std::invalid_argument("iwlomap: preload_region needs min <= max on every axis, got " +
+                                  detail::describe("min", min_bound[a]) + " > " + detail::describe("max", max_bound[a]) +
+                                  " on axis " + std::to_string(a));
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  // Tile range in doubles: floor(floor(x / r) / edge) is exact for any key, and never overflows.
+  double lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = std::floor(std::floor(min_bound[a] / m.resolution) / m.tile_voxels);
+    hi[a] = std::floor(std::floor(max_bound[a] / m.resolution) / m.tile_voxels);
+  }
+  std::vector<VoxelKey> keys;
+  for (const auto& [k, info] : m.tiles) {
+    const double t[3] = {static_cast<double>(k.x), static_cast<double>(k.y), static_cast<double>(k.z)};
+    if (t[0] >= lo[0] && t[0] <= hi[0] && t[1] >= lo[1] && t[1] <= hi[1] && t[2] >= lo[2] && t[2] <= hi[2])
+      keys.push_back(k);
+  }
+  std::sort(keys.begin(), keys.end());
+  if (keys.size() > m.cache_tiles) keys.resize(m.cache_tiles);
+  std::vector<Tile*> out;
+  Impl::PinScope pins(m);
+  m.make_resident(keys, out);
+}
+
+size_t OutofcoreTileMapper::get_disk_usage() const {
+  const Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  return static_cast<size_t>(m.disk_bytes_total + m.meta_bytes);
+}
+
+size_t OutofcoreTileMapper::prune() {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.scratch.release();
+  m.batch = {};
+  m.targets = {};
+  m.routing = Routing{};
+  m.slot_chunks = {};
+  m.slot_last_chunk = {};
+  m.slot_group = {};
+  m.slot_tile = {};
+  m.group_chunks = {};
+  m.io_buffer = {};
+  std::size_t freed = 0;
+  for (auto& t : m.resident) freed += t->grid.prune();
+  return freed;
+}
+
+std::string OutofcoreTileMapper::get_directory() const { return impl().dir; }
+double OutofcoreTileMapper::get_tile_size() const { return impl().tile_size; }
+size_t OutofcoreTileMapper::get_tile_voxels() const { return impl().tile_voxels; }
+size_t OutofcoreTileMapper::get_cache_tiles() const { return impl().cache_tiles; }
+
+size_t OutofcoreTileMapper::get_num_resident_tiles() const {
+  const Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  return m.resident.size();
+}
+size_t OutofcoreTileMapper::get_num_tiles() const {
+  const Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  return m.tiles.size();
+}
+size_t OutofcoreTileMapper::get_peak_resident_tiles() const {
+  const Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  return m.peak_resident;
+}
+
+}  // namespace iwlomap
