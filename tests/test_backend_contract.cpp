@@ -8,6 +8,7 @@
 // factory is an object, created per test, so one that needs a directory (Disk) can own it.
 
 #include "iwlomap/mapper_backend.h"
+#include "iwlomap/outofcore_tile_mapper.h"
 #include "iwlomap/probability_updater.h"
 #include "iwlomap/synthetic_scan.h"
 #ifdef IWLOMAP_TEST_WITH_OCTOMAP
@@ -16,9 +17,12 @@
 
 #include <gtest/gtest.h>
 
+#include <stdlib.h>  // mkdtemp
+
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <filesystem>
 #include <functional>
 #include <limits>
 #include <map>
@@ -27,6 +31,7 @@
 #include <stdexcept>
 #include <string>
 #include <tuple>
+#include <type_traits>
 #include <typeinfo>
 #include <utility>
 #include <vector>
@@ -44,14 +49,44 @@ struct RamFactory {
   std::unique_ptr<IMapperBackend> make(double resolution) { return std::make_unique<ProbabilityUpdater>(resolution); }
 };
 
+// 64-voxel tiles and 2 resident tiles: the suite's maps span several tiles, so tiles are evicted,
+// written and read back while the suite runs. The factory owns a temporary directory per test.
+struct DiskFactory {
+  static constexpr const char* kType = "Disk";
+  DiskFactory() {
+    std::string tmpl = (std::filesystem::temp_directory_path() / "iwlomap_contract_XXXXXX").string();
+    if (::mkdtemp(tmpl.data()) == nullptr) throw std::runtime_error("mkdtemp failed for " + tmpl);
+    dir_ = tmpl;
+  }
+  ~DiskFactory() {
+    std::error_code ec;
+    std::filesystem::remove_all(dir_, ec);
+  }
+  DiskFactory(const DiskFactory&) = delete;
+  DiskFactory& operator=(const DiskFactory&) = delete;
+  BackendOptions options(double resolution) {
+    BackendOptions o;
+    o.directory = dir_ + "/map" + std::to_string(maps_++);
+    o.tile_size = 64 * resolution;
+    o.cache_tiles = 2;
+    return o;
+  }
+  std::unique_ptr<IMapperBackend> make(double resolution) {
+    const BackendOptions o = options(resolution);
+    return std::make_unique<OutofcoreTileMapper>(o.directory, resolution, o.tile_size, o.cache_tiles);
+  }
+  std::string dir_;
+  int maps_ = 0;
+};
+
 #ifdef IWLOMAP_TEST_WITH_OCTOMAP
 struct OctoMapFactory {
   static constexpr const char* kType = "OctoMap";
   std::unique_ptr<IMapperBackend> make(double resolution) { return std::make_unique<OctreeMapper>(resolution); }
 };
-using BackendFactories = ::testing::Types<RamFactory, OctoMapFactory>;
+using BackendFactories = ::testing::Types<RamFactory, DiskFactory, OctoMapFactory>;
 #else
-using BackendFactories = ::testing::Types<RamFactory>;
+using BackendFactories = ::testing::Types<RamFactory, DiskFactory>;
 #endif
 
 struct FactoryNames {
@@ -61,10 +96,22 @@ struct FactoryNames {
   }
 };
 
+template <class F, class = void>
+struct HasOptions : std::false_type {};
+template <class F>
+struct HasOptions<F, std::void_t<decltype(std::declval<F&>().options(1.0))>> : std::true_type {};
+
 template <class Factory>
 class BackendContract : public ::testing::Test {
  protected:
   std::unique_ptr<IMapperBackend> make(double resolution) { return factory_.make(resolution); }
+  // make_backend() options: the factory's own when it has them (Disk needs a directory).
+  BackendOptions options(double resolution) {
+    if constexpr (HasOptions<Factory>::value)
+      return factory_.options(resolution);
+    else
+      return {};
+  }
   static std::unique_ptr<IMapperBackend> make_reference(double resolution) {
     return std::make_unique<ProbabilityUpdater>(resolution);
   }
@@ -169,7 +216,7 @@ TYPED_TEST(BackendContract, ReportsTypeResolutionAndEmptyMapWhenNew) {
 }
 
 TYPED_TEST(BackendContract, CreatedByMakeBackendWhenNamed) {
-  const auto map = make_backend(TypeParam::kType, 0.3);
+  const auto map = make_backend(TypeParam::kType, 0.3, this->options(0.3));
   EXPECT_EQ(map->get_backend_type(), TypeParam::kType);
   EXPECT_EQ(map->get_resolution(), 0.3);
   const auto names = available_backends();
