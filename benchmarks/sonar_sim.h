@@ -1,0 +1,104 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+// A synthetic forward-looking imaging sonar with known ground truth, for the sonar accuracy
+// benchmark (bench_sonar_accuracy). Eigen and the standard library only.
+//
+// Scene (map frame, metres, +z up): a flat seafloor at z = -0.37 (off the voxel layer planes) and
+// five objects standing on it or partly buried: a container-sized box (2 x 1 x 1 m), a low box,
+// a boulder (sphere), a pipeline (horizontal cylinder across the survey) and a pile (vertical
+// cylinder, 2 m high). The sea surface is `surface_height` above the floor.
+//
+// Sensor: `beams` beams over `horizontal_fov_deg`, each a vertical fan of `vertical_aperture_deg`
+// rendered with `elevation_rays` rays; `range_bins` bins of `range_resolution`. The sonar flies a
+// two-leg lawnmower survey at `altitude`, pitched down by `pitch_deg`, pinging every
+// `ping_spacing` metres. A pixel's clean intensity is the strongest echo in its bin,
+// 255 * reflectivity * cos(incidence angle) (Lambertian-like), which is what a TVG-compensated
+// 8-bit image shows.
+//
+// Noise and artefacts, all seeded:
+// - speckle: the clean intensity times a Gamma(L, 1/L) variate (mean 1; L = 1 is fully developed
+//   speckle, an exponential: the heaviest);
+// - noise floor: Rayleigh-distributed amplitude of scale `noise_floor` added to every pixel;
+// - multipath: each echo reappears with `multipath_gain` at the range of the path bounced off
+//   the sea surface ((direct + mirrored) / 2), in the same beam;
+// - sidelobes: each beam leaks `sidelobe_gain` of its two neighbours' echoes on each side (a
+//   bright target smears across bearing);
+// - clutter: `clutter_per_ping` transient targets in the water column per ping on average (fish,
+//   bubbles): blobs of 1-4 beams x 2-8 bins of intensity 40-160 at random ranges.
+//
+// Ground truth: every ray's noise-free hit is a surface point the sonar ensonified ("visible").
+// The first-return model of SonarImageProjector can only ever claim, per beam and ping, the
+// surface at the beam's nearest hit range (plus its occupied band); those hits, within
+// `truth_band` of the nearest one, form the "footprint" truth the benchmark scores against. Both
+// sets are voxel keys at the benchmark's resolution.
+
+#include <iwlomap/sonar_image_projector.h>
+#include <iwlomap/voxel_key.h>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <cstdint>
+#include <string>
+#include <unordered_set>
+#include <vector>
+
+namespace iwlomap::bench {
+
+struct SonarNoise {
+  std::string name = "none";
+  int speckle_looks = 0;         ///< 0: no speckle; else L of the Gamma(L, 1/L) multiplier
+  double noise_floor = 0.0;      ///< Rayleigh scale of the additive noise (raw units)
+  double multipath_gain = 0.0;   ///< amplitude of the sea-surface ghost relative to the echo
+  double sidelobe_gain = 0.0;    ///< leakage of the neighbouring beams' echoes
+  double clutter_per_ping = 0.0; ///< mean number of water-column clutter blobs per ping
+};
+
+/// Light noise: some speckle averaging (4 looks), a low noise floor, rare clutter.
+[[nodiscard]] SonarNoise light_noise();
+/// Heavy noise: fully developed speckle (1 look), a noise floor that crosses the threshold,
+/// strong multipath and sidelobes, frequent clutter.
+[[nodiscard]] SonarNoise heavy_noise();
+
+struct SonarSimOptions {
+  int beams = 128;
+  double horizontal_fov_deg = 90.0;
+  double vertical_aperture_deg = 20.0;
+  int elevation_rays = 256;
+  int range_bins = 500;
+  double range_resolution = 0.025;  ///< 12.5 m of range
+  double altitude = 3.0;            ///< sonar height above the seafloor, metres
+  double pitch_deg = 25.0;          ///< the fan's centre line points this far below horizontal
+  double surface_height = 12.0;     ///< sea surface above the seafloor, metres (multipath)
+  double ping_spacing = 0.1;        ///< metres between pings along a leg
+  double leg_start_x = -4.0, leg_end_x = 28.0;
+  double leg_y[2] = {1.5, -1.5};    ///< the two legs: +x at leg_y[0], back along -x at leg_y[1]
+  double resolution = 0.1;          ///< voxel edge of the truth sets
+  double truth_band = 0.1;          ///< footprint: hits within this of the beam's nearest hit
+  double echo_threshold = 35.0;     ///< for the early/late return statistics only
+  std::uint32_t seed = 1;
+  SonarNoise noise;
+};
+
+struct SimulatedPing {
+  Eigen::Isometry3d pose;  ///< sonar frame (+X fwd, +Y right, +Z down) to map frame (+z up)
+  SonarImage8 image;       ///< range_bins x beams
+};
+
+struct SonarSimulation {
+  SonarGeometry geometry;  ///< bearings, range resolution, max range, aperture (min range 0)
+  std::vector<SimulatedPing> pings;
+  std::unordered_set<VoxelKey, VoxelKeyHash> visible_truth;    ///< every ensonified surface voxel
+  std::unordered_set<VoxelKey, VoxelKeyHash> footprint_truth;  ///< the first-return footprint
+  std::size_t beams = 0;          ///< beams over all pings
+  /// Beams whose first pixel above echo_threshold lies more than 2 bins before the true nearest
+  /// surface (a false echo from noise or clutter), or more than 2 bins after it (a missed echo).
+  std::size_t early_returns = 0;
+  std::size_t late_returns = 0;
+};
+
+/// Renders the survey. Throws std::invalid_argument for non-positive sizes.
+[[nodiscard]] SonarSimulation simulate_sonar_survey(const SonarSimOptions& options);
+
+}  // namespace iwlomap::bench
