@@ -103,7 +103,7 @@ std::uint64_t encode_tile(const BlockGrid& grid, double resolution, std::uint32_
   std::size_t payload = 0;
   for (const auto& b : grid.blocks()) {
     if (b->known == 0) continue;
-    blocks.push_back(b.get());
+    blocks.push_back(b);
     payload += kRecordFixedBytes + kVoxelBytes * b->known;
   }
   std::sort(blocks.begin(), blocks.end(), [](const VoxelBlock* a, const VoxelBlock* b) { return a->key < b->key; });
