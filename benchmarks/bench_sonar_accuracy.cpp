@@ -106,14 +106,15 @@ ScoredVoxels probabilities(const iwlomap::IMapperBackend& map) {
   return out;
 }
 
-template <typename Set>
-Set restrict_to(const Set& set, const KeySet& region) {
+// The voxels of a set (or the entries of a map) whose key satisfies \p inside.
+template <typename Set, typename Inside>
+Set restrict_to(const Set& set, Inside&& inside) {
   Set out;
   for (const auto& item : set) {
     if constexpr (std::is_same_v<Set, KeySet>) {
-      if (region.count(item) > 0) out.insert(item);
+      if (inside(item)) out.insert(item);
     } else {
-      if (region.count(item.first) > 0) out.insert(item);
+      if (inside(item.first)) out.insert(item);
     }
   }
   return out;
@@ -415,14 +416,12 @@ int main(int argc, char** argv) {
       results.push_back({tested[i].name, probabilities(*maps[i]), tested[i].params.occupied_threshold,
                          &probability_sweep});
     if (!opt.ablation) results.push_back({"intensity average", average.averages(), kEchoThreshold, &intensity_sweep});
-    // The corridor, as the set of known voxels inside it (no truth voxel is unknown: every
-    // footprint voxel received an occupied arc sample).
-    KeySet corridor;
-    maps.front()->for_each_voxel([&](const VoxelKey& k, const VoxelState&) {
+    const auto corridor = [&](const VoxelKey& k) {
       const Eigen::Vector3d c = key_to_center(k, opt.resolution);
-      if (c.x() >= so.leg_start_x && c.x() <= so.leg_end_x && std::abs(c.y()) <= kCorridorHalfWidth)
-        corridor.insert(k);
-    });
+      return c.x() >= so.leg_start_x && c.x() <= so.leg_end_x && std::abs(c.y()) <= kCorridorHalfWidth;
+    };
+    std::size_t known_inside = 0;
+    maps.front()->for_each_voxel([&](const VoxelKey& k, const VoxelState&) { known_inside += corridor(k) ? 1 : 0; });
     const KeySet truth_inside = restrict_to(sim.footprint_truth, corridor);
     const KeySet visible_inside = restrict_to(sim.visible_truth, corridor);
     double visible_recall = 0.0;
@@ -453,10 +452,10 @@ int main(int argc, char** argv) {
                   "%s noise: %zu pings, %zu beams: %.1f %% with a false early echo (noise, clutter, sidelobes), "
                   "%.1f %% with a late or missed echo; truth: %zu footprint voxels, %zu visible surface voxels "
                   "(of which IWLO (defaults) recalls %.3f); %zu voxel observations, %zu known voxels, "
-                  "%zu in the corridor (holding %zu footprint voxels); simulation %.1f s, projection and mapping %.1f s",
+                  "%zu of them in the corridor, which holds %zu footprint voxels; simulation %.1f s, projection and mapping %.1f s",
                   noise.name.c_str(), sim.pings.size(), sim.beams, 100.0 * sim.early_returns / sim.beams,
                   100.0 * sim.late_returns / sim.beams, sim.footprint_truth.size(), sim.visible_truth.size(),
-                  visible_recall, observations, maps.front()->get_num_nodes(), corridor.size(),
+                  visible_recall, observations, maps.front()->get_num_nodes(), known_inside,
                   truth_inside.size(), std::chrono::duration<double>(t1 - t0).count(),
                   std::chrono::duration<double>(t2 - t1).count());
     notes.emplace_back(line);
