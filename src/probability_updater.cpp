@@ -4,6 +4,7 @@
 #include "detail/absolute_log_odds.h"
 #include "detail/batch_input.h"
 #include "detail/block_grid.h"
+#include "detail/hit_accumulator.h"
 #include "detail/param_setters.h"
 #include "detail/scan_scratch.h"
 
@@ -67,6 +68,7 @@ struct ProbabilityUpdater::Impl {
   std::vector<std::pair<detail::VoxelBlock*, detail::Voxel*>> targets;  // reused between batches
   std::size_t known = 0;
   std::size_t skipped = 0;
+  std::unique_ptr<detail::HitAccumulator> hits;  // null while hit accumulation is off
 };
 
 ProbabilityUpdater::ProbabilityUpdater(double resolution) {
@@ -88,12 +90,16 @@ const ProbabilityUpdater::Impl& ProbabilityUpdater::impl() const {
 
 void ProbabilityUpdater::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                                            const std::vector<bool>& is_occupied) {
-  impl().apply_batch(points, intensities, is_occupied, nullptr);
+  Impl& m = impl();
+  m.apply_batch(points, intensities, is_occupied, nullptr);
+  if (m.hits) m.hits->add_batch(points, intensities, is_occupied, m.updater.params().intensity_threshold);
 }
 
 void ProbabilityUpdater::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                                            const std::vector<bool>& is_occupied, const Eigen::VectorXd& weights) {
-  impl().apply_batch(points, intensities, is_occupied, &weights);
+  Impl& m = impl();
+  m.apply_batch(points, intensities, is_occupied, &weights);
+  if (m.hits) m.hits->add_batch(points, intensities, is_occupied, m.updater.params().intensity_threshold);
 }
 
 void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
@@ -135,6 +141,7 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
   }
   m.scratch.for_each_hit([&](const VoxelKey& key, double intensity) { m.apply(acc, key, intensity, true, 1.0); });
   m.skipped += skip;
+  if (m.hits) m.hits->add_scan(origin, points, intensities, max_range, m.updater.params().intensity_threshold);
 }
 
 void ProbabilityUpdater::set_iwlo_params(double sharpness, double decay_rate, double min_alpha, double L_min,
@@ -209,10 +216,53 @@ void ProbabilityUpdater::for_each_voxel(const std::function<void(const VoxelKey&
   }
 }
 
+void ProbabilityUpdater::set_hit_accumulation(bool enabled) {
+  Impl& m = impl();
+  if (!enabled)
+    m.hits.reset();
+  else if (!m.hits)
+    m.hits = std::make_unique<detail::HitAccumulator>(m.resolution);
+}
+
+bool ProbabilityUpdater::get_hit_accumulation() const { return impl().hits != nullptr; }
+
+std::optional<HitStatistics> ProbabilityUpdater::hit_statistics(const Eigen::Vector3d& point) const {
+  const Impl& m = impl();
+  if (!m.hits)
+    throw std::logic_error("iwlomap: hit_statistics() needs hit accumulation, which is off (set_hit_accumulation(true))");
+  const VoxelKey key = world_to_key_checked(point, m.resolution);
+  const detail::HitCell* c = m.hits->find(key);
+  if (c == nullptr || c->visits == 0) return std::nullopt;
+  return m.hits->statistics(key, *c);
+}
+
+Eigen::MatrixXd ProbabilityUpdater::get_occupied_mean_positions(double min_probability) {
+  const double threshold = detail::resolve_min_probability(min_probability);
+  const Impl& m = impl();
+  if (!m.hits)
+    throw std::logic_error(
+        "iwlomap: get_occupied_mean_positions() needs hit accumulation, which is off (set_hit_accumulation(true))");
+  // The same walk as get_occupied_voxels(), so the rows come in the same order.
+  std::vector<double> rows;
+  for (const auto& b : m.grid.blocks()) {
+    for (int i = 0; i < detail::kBlockVoxels; ++i) {
+      if (b->voxels[i].count == 0) continue;
+      const double p = iwlo::probability(b->voxels[i].log_odds);
+      if (!(p > threshold)) continue;
+      const VoxelKey key = detail::voxel_of(b->key, i);
+      const detail::HitCell* c = m.hits->find(key);
+      const Eigen::Vector3d x = c != nullptr ? m.hits->mean_position(key, *c) : key_to_center(key, m.resolution);
+      rows.insert(rows.end(), {x.x(), x.y(), x.z(), p});
+    }
+  }
+  return detail::rows_to_matrix(rows);
+}
+
 MemoryStats ProbabilityUpdater::get_memory_usage() const {
   const Impl& m = impl();
   const std::size_t bytes = sizeof(Impl) + m.grid.bytes() + m.scratch.bytes() +
-                            m.batch.capacity() * sizeof(detail::Observation) + m.targets.capacity() * sizeof(m.targets[0]);
+                            m.batch.capacity() * sizeof(detail::Observation) + m.targets.capacity() * sizeof(m.targets[0]) +
+                            (m.hits ? m.hits->bytes() : 0);
   const std::size_t slots = m.grid.num_blocks() * detail::kBlockVoxels;
   return MemoryStats{m.known, m.known, static_cast<double>(bytes) / (1024.0 * 1024.0),
                      slots == 0 ? 0.0 : static_cast<double>(m.known) / static_cast<double>(slots)};
@@ -230,6 +280,7 @@ void ProbabilityUpdater::clear() {
   m.targets = {};
   m.known = 0;
   m.skipped = 0;
+  if (m.hits) m.hits->clear();
 }
 
 size_t ProbabilityUpdater::prune() {

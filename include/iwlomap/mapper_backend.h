@@ -12,6 +12,7 @@
 /// a call that throws changes nothing. Non-finite points are skipped and counted
 /// (get_num_skipped_points()). An empty batch is a no-op.
 
+#include "iwlomap/hit_statistics.h"
 #include "iwlomap/iwlo.h"
 #include "iwlomap/voxel_key.h"
 
@@ -141,6 +142,22 @@ class IMapperBackend {
   /// target of an import.
   virtual void set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds);
 
+  /// Turns per-voxel hit statistics on or off (off by default; see hit_statistics.h for what
+  /// counts as a hit and a visit). Turning it on when it is off starts from empty statistics (on
+  /// again keeps them); turning it off frees them. clear() empties them and keeps the setting.
+  /// The default throws std::logic_error naming the backend when asked to turn it on (turning it
+  /// off is a no-op): a backend without it cannot give mean hit positions.
+  virtual void set_hit_accumulation(bool enabled);
+  [[nodiscard]] virtual bool get_hit_accumulation() const { return false; }
+  /// Statistics of the voxel containing \p point, or std::nullopt when accumulation has never
+  /// seen it visited. Throws std::logic_error when accumulation is off (the default: naming the
+  /// backend), std::invalid_argument for a non-finite point.
+  [[nodiscard]] virtual std::optional<HitStatistics> hit_statistics(const Eigen::Vector3d& point) const;
+  /// get_occupied_voxels() with each voxel's mean hit position instead of its centre (the centre
+  /// where the voxel has no accumulated hit): rows (x, y, z, p) in the same order. Throws
+  /// std::logic_error when accumulation is off (the default: naming the backend).
+  [[nodiscard]] virtual Eigen::MatrixXd get_occupied_mean_positions(double min_probability = 0.5);
+
   /// Threads that insert_scan() may use to cast rays and apply them: 1 (the default, so that
   /// single-thread figures stay comparable), N, or 0 for every hardware thread. The map is
   /// bit-identical whatever the count. Backends that cannot use threads accept the setting and
@@ -157,6 +174,22 @@ inline void IMapperBackend::set_log_odds(const Eigen::MatrixXd& points, const Ei
   (void)points;
   (void)log_odds;
   throw std::logic_error("iwlomap: the " + get_backend_type() + " backend does not implement set_log_odds()");
+}
+
+inline void IMapperBackend::set_hit_accumulation(bool enabled) {
+  if (enabled)
+    throw std::logic_error("iwlomap: the " + get_backend_type() + " backend does not implement hit accumulation");
+}
+
+inline std::optional<HitStatistics> IMapperBackend::hit_statistics(const Eigen::Vector3d& point) const {
+  (void)point;
+  throw std::logic_error("iwlomap: the " + get_backend_type() + " backend does not implement hit_statistics()");
+}
+
+inline Eigen::MatrixXd IMapperBackend::get_occupied_mean_positions(double min_probability) {
+  (void)min_probability;
+  throw std::logic_error("iwlomap: the " + get_backend_type() +
+                         " backend does not implement get_occupied_mean_positions()");
 }
 
 /// Options of make_backend() that only some backends use.

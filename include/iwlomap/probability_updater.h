@@ -49,6 +49,14 @@ class ProbabilityUpdater final : public IMapperBackend {
   [[nodiscard]] std::optional<VoxelState> query(const Eigen::Vector3d& point) const override;
   void for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const override;
 
+  /// Hit statistics (see hit_statistics.h for what counts): kept in a side structure of 32 bytes
+  /// per visited voxel, allocated only while accumulation is on, and counted by insert_scan() in
+  /// a second pass over the rays on the calling thread (roughly doubling its single-thread time).
+  void set_hit_accumulation(bool enabled) override;
+  [[nodiscard]] bool get_hit_accumulation() const override;
+  [[nodiscard]] std::optional<HitStatistics> hit_statistics(const Eigen::Vector3d& point) const override;
+  [[nodiscard]] Eigen::MatrixXd get_occupied_mean_positions(double min_probability = 0.5) override;
+
   /// memory_mb counts every byte the map holds: blocks, block table, hash index and the scratch
   /// buffers kept between scans. memory_efficiency = known voxels / allocated voxel slots.
   [[nodiscard]] MemoryStats get_memory_usage() const override;
