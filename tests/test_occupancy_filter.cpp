@@ -366,6 +366,30 @@ Cloud::Ptr load_or_skip(const std::filesystem::path& path) {
   return c;
 }
 
+// The wall at x = 2 m sits on a voxel boundary at 0.15 m (x key 13 covers [1.95, 2.1)): centres
+// are 0.025 m off, mean hit positions are on the wall.
+TEST(OccupancyFilter, MeanPositionsPutVoxelsAtTheirMeanHit) {
+  auto in = make_wall_scan(200.0f, 2000);
+  Filter f;
+  f.setResolution(0.15);
+  f.setInputCloud(in);
+  EXPECT_FALSE(f.getOutputMeanPositions());
+  Cloud centres, means;
+  f.filter(centres);
+  EXPECT_FALSE(f.getMap()->get_hit_accumulation());
+  f.getMap()->clear();
+  f.setOutputMeanPositions(true);
+  f.filter(means);
+  EXPECT_TRUE(f.getMap()->get_hit_accumulation());
+  ASSERT_EQ(means.size(), centres.size());
+  ASSERT_GT(means.size(), 10u);
+  for (std::size_t i = 0; i < means.size(); ++i) {
+    EXPECT_NEAR(centres[i].x, 2.025f, 1e-5f);
+    EXPECT_NEAR(means[i].x, 2.0f, 1e-5f);
+    EXPECT_EQ(means[i].intensity, centres[i].intensity);
+  }
+}
+
 TEST(OccupancyFilterData, OusterFramesGiveAGroundPlaneBelowTheSensor) {
   const auto dir = data_dir() / "ouster_os1_128_3frames";
   if (!std::filesystem::exists(dir)) GTEST_SKIP() << "recorded data not found at " << dir << "; test skipped";

@@ -68,9 +68,13 @@ void integrate_cloud(IMapperBackend& map, const pcl::PointCloud<PointT>& cloud, 
 
 /// Writes the map's voxels with probability > \p min_probability into \p output as voxel centres
 /// (metres, map frame), `intensity` = probability where the type has it; unorganised and dense.
+/// With \p mean_positions, each voxel is at its mean hit position instead
+/// (IMapperBackend::get_occupied_mean_positions(); the map must accumulate hits).
 template <typename PointT>
-void occupied_to_cloud(IMapperBackend& map, double min_probability, pcl::PointCloud<PointT>& output) {
-  const Eigen::MatrixXd occupied = map.get_occupied_voxels(min_probability);
+void occupied_to_cloud(IMapperBackend& map, double min_probability, pcl::PointCloud<PointT>& output,
+                       bool mean_positions = false) {
+  const Eigen::MatrixXd occupied =
+      mean_positions ? map.get_occupied_mean_positions(min_probability) : map.get_occupied_voxels(min_probability);
   output.resize(static_cast<std::size_t>(occupied.rows()));
   for (Eigen::Index i = 0; i < occupied.rows(); ++i) {
     PointT& q = output[static_cast<std::size_t>(i)];

@@ -27,7 +27,8 @@ namespace iwlomap {
 /// `intensity` field (e.g. pcl::PointXYZ) gives every point the intensity `intensity_max`, so every
 /// point is a full-weight hit.
 ///
-/// Output: one point per occupied voxel of the whole map (all frames so far), at the voxel centre;
+/// Output: one point per occupied voxel of the whole map (all frames so far), at the voxel centre
+/// (or at the mean of the hits that fell in it, setOutputMeanPositions());
 /// `intensity` (where the type has it) is the occupancy probability in (threshold, 1]. The output
 /// is unorganised (height 1) and dense; header, sensor origin and orientation are the input's.
 /// An empty input integrates nothing and returns the current map. In-place use
@@ -84,6 +85,15 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   void setNumThreads(int threads);
   [[nodiscard]] int getNumThreads() const { return num_threads_; }
 
+  /// On: each occupied voxel is output at the mean position of the hits that fell in it (a
+  /// sub-voxel estimate of the surface, see iwlomap/hit_statistics.h) instead of its centre; a
+  /// voxel without accumulated hits stays at its centre. Off by default. Turning it on turns hit
+  /// accumulation on in the map at the next filter() (RAM backend; other backends throw
+  /// std::logic_error there), so only hits integrated from then on count. Turning it off does not
+  /// turn accumulation off.
+  void setOutputMeanPositions(bool enabled) { mean_positions_ = enabled; }
+  [[nodiscard]] bool getOutputMeanPositions() const { return mean_positions_; }
+
  protected:
   using pcl::Filter<PointT>::filter_name_;
   using pcl::Filter<PointT>::input_;
@@ -103,6 +113,7 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   bool ray_casting_ = true;
   int num_threads_ = 1;
   bool threads_pending_ = false;  // apply num_threads_ to the map at the next filter()
+  bool mean_positions_ = false;
 };
 
 }  // namespace iwlomap

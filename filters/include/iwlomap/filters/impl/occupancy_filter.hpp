@@ -88,13 +88,14 @@ void OccupancyFilter<PointT>::ensureMap() {
     map_->set_num_threads(num_threads_);
     threads_pending_ = false;
   }
+  if (mean_positions_ && !map_->get_hit_accumulation()) map_->set_hit_accumulation(true);
 }
 
 template <typename PointT>
 void OccupancyFilter<PointT>::applyFilter(PointCloud& output) {
   ensureMap();
   integrate_cloud(*map_, *input_, indices_.get(), ray_casting_, max_range_);
-  occupied_to_cloud(*map_, params_.occupied_threshold, output);
+  occupied_to_cloud(*map_, params_.occupied_threshold, output, mean_positions_);
 }
 
 }  // namespace iwlomap
