@@ -30,6 +30,8 @@ output:
   -o, --output FILE         occupied voxels as .pcd or .ply (binary)
   --async                   read the next file while the previous one is integrated (a background
                             thread integrates; the map is the same)
+  --mean-positions          write each occupied voxel at the mean position of the hits that fell
+                            in it (sub-voxel surface estimate) instead of its centre (ram backend)
 )";
 
 }  // namespace
@@ -38,7 +40,7 @@ int run_map(const std::vector<std::string>& argv) {
   auto value_opts = map_value_options();
   value_opts.insert({"-o", "--output", "--octomap", "--snapshot"});
   auto flag_opts = map_flag_options();
-  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async"});
+  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async", "--mean-positions"});
   const Args args(argv, value_opts, flag_opts);
   if (args.flag("-h") || args.flag("--help")) {
     std::cout << kHelp << map_outputs_help() << map_options_help() << "  -q, --quiet               no summary, no progress bar\n";
@@ -52,6 +54,12 @@ int run_map(const std::vector<std::string>& argv) {
     throw UsageError("the output must end in .pcd or .ply, got '" + *output + "'");
 
   const MapSetup setup = map_setup_from(args);
+  const bool mean_positions = args.flag("--mean-positions");
+  try {
+    if (mean_positions) setup.map->set_hit_accumulation(true);
+  } catch (const std::logic_error& e) {
+    throw UsageError(std::string("--mean-positions needs --backend ram (") + e.what() + ")");
+  }
   const MapOutputs extra = map_outputs_from(args);
   const bool async = args.flag("--async");
   if (async && !setup.ray_casting) throw UsageError("--async needs ray casting (drop --no-rays)");
@@ -79,7 +87,7 @@ int run_map(const std::vector<std::string>& argv) {
     if (background) background->sync();
   }
   pcl::PointCloud<pcl::PointXYZI> occupied;
-  occupied_to_cloud(*setup.map, setup.params.occupied_threshold, occupied);
+  occupied_to_cloud(*setup.map, setup.params.occupied_threshold, occupied, mean_positions);
   if (output) save_cloud(*output, occupied);
   write_map_outputs(extra, *setup.map, setup.params.occupied_threshold);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();

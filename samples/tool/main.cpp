@@ -24,6 +24,7 @@ commands:
   generate   write a synthetic lidar scan (.pcd) to try the tool on
   render     draw a voxel map (.pcd/.ply) into a PNG image, off screen
   sonar      map imaging-sonar pings (Oculus .raw) into one map, write the occupied voxels
+  pyramid    write a map's multi-resolution max grids (Cartographer's precomputation grids) as PNGs
 
 Run 'iwlomap <command> --help' for the options of a command.
 )";
@@ -51,6 +52,7 @@ int main(int argc, char** argv) {
     if (command == "generate") return run_generate(rest);
     if (command == "render") return run_render(rest);
     if (command == "sonar") return run_sonar(rest);
+    if (command == "pyramid") return run_pyramid(rest);
     throw UsageError("unknown command '" + command + "'");
   } catch (const UsageError& e) {
     std::cerr << "iwlomap " << (command.rfind('-', 0) == 0 ? std::string() : command + " ") << "usage error: " << e.what()

@@ -93,6 +93,18 @@ check info_empty_output 0 "$TOOL" info "$WORK/empty_out.pcd"
 expect empty_output_has_no_points grep -q ": cloud, 0 points" "$WORK/info_empty_output.out"
 expect no_partial_left test ! -e "$WORK/empty_out.pcd.partial"
 
+# Mean hit positions and the multi-resolution max grids (pyramid).
+check map_mean_positions 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --mean-positions -o "$WORK/occupied_mean.pcd"
+n_mean=$(grep -a -m1 '^POINTS' "$WORK/occupied_mean.pcd" | awk '{print $2}')
+expect mean_positions_same_count test "${n_mean:-0}" = "$n_pcd"
+check help_pyramid 0 "$TOOL" pyramid --help
+check pyramid 0 "$TOOL" pyramid "$WORK/occupied.pcd" --resolution 0.2 --levels 3 -o "$WORK/pyramid"
+expect pyramid_files bash -c "for k in 0 1 2; do test -s '$WORK/pyramid/level_'\$k'.png' && test -s '$WORK/pyramid/level_'\$k'.txt' || exit 1; done"
+expect pyramid_png_signature bash -c "head -c 8 '$WORK/pyramid/level_2.png' | od -An -tx1 | grep -q '89 50 4e 47 0d 0a 1a 0a'"
+expect pyramid_txt_header bash -c "head -1 '$WORK/pyramid/level_2.txt' | grep -Eq '^[0-9]+ [0-9]+$'"
+check pyramid_needs_resolution 2 "$TOOL" pyramid "$WORK/occupied.pcd" -o "$WORK/pyramid_x"
+check pyramid_refuses_raw_scan 1 "$TOOL" pyramid "$WORK/scan.pcd" --resolution 0.2 -o "$WORK/pyramid_y"
+
 # Errors: bad usage exits 2, failures exit 1, each with one line on stderr.
 check missing_input 1 "$TOOL" map "$WORK/does_not_exist.pcd" -o "$WORK/x.pcd"
 expect missing_input_one_line one_line missing_input
