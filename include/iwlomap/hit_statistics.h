@@ -8,7 +8,8 @@
 ///
 /// Accumulation is optional per map and off by default (IMapperBackend::set_hit_accumulation()),
 /// so the default voxel stays within its 8 bytes; the RAM backend keeps the statistics in a side
-/// structure (32 bytes per visited voxel) allocated only while accumulation is on. What counts:
+/// structure (32 bytes per voxel, in 8^3 blocks allocated on a first visit) that exists only
+/// while accumulation is on. What counts:
 /// - insert_scan(), per ray, as GMapping counts beams: a ray whose endpoint is a hit (within
 ///   max_range, intensity above the threshold) adds its point to the endpoint voxel's sum and one
 ///   hit and one visit there; every voxel the ray crosses before its endpoint voxel gets one

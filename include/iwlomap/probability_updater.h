@@ -50,8 +50,9 @@ class ProbabilityUpdater final : public IMapperBackend {
   void for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const override;
 
   /// Hit statistics (see hit_statistics.h for what counts): kept in a side structure of 32 bytes
-  /// per visited voxel, allocated only while accumulation is on, and counted by insert_scan() in
-  /// a second pass over the rays on the calling thread (roughly doubling its single-thread time).
+  /// per voxel (8^3 blocks, about 4x the map's own memory), allocated only while accumulation is
+  /// on, and counted by insert_scan() in a second pass over the rays on the calling thread
+  /// (measured 1.6-2.7x the single-thread time of a 64k-ray scan at 0.1 m).
   void set_hit_accumulation(bool enabled) override;
   [[nodiscard]] bool get_hit_accumulation() const override;
   [[nodiscard]] std::optional<HitStatistics> hit_statistics(const Eigen::Vector3d& point) const override;
