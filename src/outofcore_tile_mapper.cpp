@@ -38,6 +38,10 @@ namespace fs = std::filesystem;
 
 constexpr const char* kMetaName = "iwlomap_map.meta";
 constexpr const char* kLockName = "iwlomap_map.lock";
+constexpr const char* kStagingName = "iwlomap_map.staging";
+// The staging file is rewritten without its dead images once it is this large and more than half
+// of it is dead.
+constexpr std::uint64_t kCompactMinBytes = std::uint64_t{1} << 20;
 constexpr const char* kMetaFirstLine = "iwlomap tile map";
 constexpr const char* kTilePrefix = "tile_";
 constexpr const char* kTileSuffix = ".iwt";
@@ -180,22 +184,20 @@ struct Tile {
   std::uint64_t last_used = 0;
 };
 
-// A tile's files: the committed tile_<x>_<y>_<z>.iwt, and possibly a staged
-// tile_<x>_<y>_<z>.iwt.tmp holding a newer complete state that an eviction wrote without fsync;
-// flush() makes staged files durable and renames them over the committed ones. A crash discards
-// the staged files (the next open deletes them), so committed tiles only ever change at a flush.
+// A tile on disk: its committed file tile_<x>_<y>_<z>.iwt, and possibly a staged image, a newer
+// complete state that an eviction appended to the staging file (one file for all evicted tiles,
+// not fsync'ed: appending costs no file creation, which dominates on many file systems). flush()
+// writes staged images to their tile files; a crash discards the staging file (the next open
+// deletes it), so tile files only ever change at a flush.
 struct TileInfo {
   Tile* resident = nullptr;
   bool committed = false;
   bool staged = false;
-  bool staged_synced = false;        // the staged file was fsync'ed when written
   std::uint64_t committed_bytes = 0;
+  std::uint64_t staged_offset = 0;  // in the staging file
   std::uint64_t staged_bytes = 0;
-  std::size_t file_known = 0;        // known voxels in the newest file (staged, else committed)
+  std::size_t file_known = 0;  // known voxels of the newest image (staged, else committed)
   [[nodiscard]] bool on_disk() const noexcept { return committed || staged; }
-  [[nodiscard]] std::uint64_t bytes() const noexcept {
-    return (committed ? committed_bytes : 0) + (staged ? staged_bytes : 0);
-  }
 };
 
 // Items (observations, voxels) of one call sorted by tile, stable, so that each tile is loaded
@@ -235,6 +237,7 @@ struct OutofcoreTileMapper::Impl {
       flush();
     } catch (...) {
     }
+    if (staging_fd >= 0) ::close(staging_fd);
     if (lock_fd >= 0) ::close(lock_fd);
   }
   Impl(const Impl&) = delete;
@@ -274,9 +277,9 @@ struct OutofcoreTileMapper::Impl {
       VoxelKey t;
       if (parse_tile_file_name(name, t))
         tile_names.push_back(name);
-      else if (ends_with(name, kTempSuffix) &&
-               (name == std::string(kMetaName) + kTempSuffix ||
-                parse_tile_file_name(name.substr(0, name.size() - 4), t)))
+      else if ((ends_with(name, kTempSuffix) && (name == std::string(kMetaName) + kTempSuffix ||
+                                                   parse_tile_file_name(name.substr(0, name.size() - 4), t))) ||
+               name == kStagingName || name == std::string(kStagingName) + ".new")
         temp_names.push_back(name);
     }
     if (ec) throw StorageError(StorageError::Kind::kIo, dir, "iwlomap: cannot list map directory " + dir + ": " + ec.message());
@@ -321,10 +324,10 @@ struct OutofcoreTileMapper::Impl {
       info.committed_bytes = size;
       info.file_known = static_cast<std::size_t>(h.known_voxels);
       total_known += info.file_known;
-      disk_bytes_total += size;
+      committed_bytes_total += size;
     }
-    // Staged tiles and writes interrupted by a crash: never committed, not necessarily complete on
-    // disk (no fsync), and always ours. Removed only once every tile checked out, so that an open
+    // The staging file and writes interrupted by a crash: never committed, not necessarily complete
+    // on disk (no fsync), and always ours. Removed only once every tile checked out, so that an open
     // that fails changes no file.
     for (const std::string& name : temp_names) detail::remove_file(path_of(name));
   }
@@ -352,15 +355,25 @@ struct OutofcoreTileMapper::Impl {
 
   void touch(Tile& t) { t.last_used = ++tick; }
 
-  // The newest file of a tile: staged, else committed.
-  [[nodiscard]] std::string newest_path(const VoxelKey& key, const TileInfo& info) const {
-    return info.staged ? tile_path(key) + kTempSuffix : tile_path(key);
+  [[nodiscard]] std::string staging_path() const { return path_of(kStagingName); }
+
+  // The newest image of a tile (staged, else committed) into \p bytes; returns the path that
+  // names it in messages.
+  std::string read_image(const VoxelKey& key, const TileInfo& info, std::vector<std::uint8_t>& bytes) {
+    if (info.staged) {
+      const std::string where = staging_path() + " (staged image of " + tile_file_name(key) + ")";
+      detail::read_at(staging_fd, info.staged_offset, static_cast<std::size_t>(info.staged_bytes), where, bytes);
+      return where;
+    }
+    const std::string path = tile_path(key);
+    bytes = detail::read_file(path);
+    return path;
   }
 
-  // Reads and fully checks the newest file of a tile. Nothing changes when it throws.
+  // Reads and fully checks the newest image of a tile. Nothing changes when it throws.
   std::unique_ptr<Tile> read_tile(const VoxelKey& key, const TileInfo& info) {
-    const std::string path = newest_path(key, info);
-    const std::vector<std::uint8_t> bytes = detail::read_file(path);
+    std::vector<std::uint8_t> bytes;
+    const std::string path = read_image(key, info, bytes);
     const detail::TileHeader h =
         detail::parse_tile_header(bytes.data(), bytes.size(), bytes.size(), resolution, tile_voxels, key, path);
     auto tile = std::make_unique<Tile>(key);
@@ -374,38 +387,76 @@ struct OutofcoreTileMapper::Impl {
     return tile;
   }
 
-  // Writes a dirty tile to its staged file (fsync'ed when \p sync). On failure the staged file is
-  // gone (write_temp_file() removes it) and the tile stays dirty: RAM holds its newest state.
-  void stage_tile(Tile& t, TileInfo& info, bool sync) {
-    const std::string path = tile_path(t.key);
-    (void)detail::encode_tile(t.grid, resolution, tile_voxels, t.key, io_buffer);
-    disk_bytes_total -= info.bytes();
+  void unstage(TileInfo& info) {
+    if (!info.staged) return;
+    staging_live -= info.staged_bytes;
     info.staged = false;
-    try {
-      detail::write_temp_file(path + kTempSuffix, path, io_buffer, sync);
-    } catch (...) {
-      disk_bytes_total += info.bytes();
-      throw;
+  }
+
+  // Appends a dirty tile's image to the staging file (eviction). On failure nothing changes: the
+  // tile stays dirty, and a previous staged image of it stays valid.
+  void stage_tile(Tile& t, TileInfo& info) {
+    (void)detail::encode_tile(t.grid, resolution, tile_voxels, t.key, io_buffer);
+    if (staging_fd < 0) {
+      staging_fd = detail::create_scratch_file(staging_path());
+      staging_size = 0;
+      staging_live = 0;
+    } else if (staging_size >= kCompactMinBytes && staging_size > 2 * staging_live) {
+      compact_staging();
     }
+    detail::write_at(staging_fd, io_buffer, staging_size, staging_path());
+    unstage(info);
     info.staged = true;
-    info.staged_synced = sync;
+    info.staged_offset = staging_size;
     info.staged_bytes = io_buffer.size();
     info.file_known = t.known;
-    disk_bytes_total += info.bytes();
+    staging_size += io_buffer.size();
+    staging_live += io_buffer.size();
     t.dirty = false;
   }
 
-  // Makes a staged file the committed tile (fsync unless done, rename). The directory entry is
-  // made durable by the caller (dir_sync_pending).
-  void commit_tile(const VoxelKey& key, TileInfo& info) {
-    const std::string path = tile_path(key);
-    detail::commit_temp_file(path + kTempSuffix, path, info.staged_synced);
-    disk_bytes_total -= info.bytes();
-    info.committed = true;
-    info.committed_bytes = info.staged_bytes;
-    info.staged = false;
-    disk_bytes_total += info.bytes();
-    dir_sync_pending = true;
+  // Rewrites the staging file with the live images only (a new file renamed over the old one: if
+  // anything fails, the old file and its offsets stay valid).
+  void compact_staging() {
+    const std::string fresh_path = staging_path() + ".new";
+    const int fresh = detail::create_scratch_file(fresh_path);
+    std::vector<std::pair<TileInfo*, std::uint64_t>> moved;  // new offsets, applied on success
+    std::uint64_t size = 0;
+    try {
+      std::vector<VoxelKey> keys;
+      for (const auto& [k, info] : tiles)
+        if (info.staged) keys.push_back(k);
+      std::sort(keys.begin(), keys.end());
+      std::vector<std::uint8_t> bytes;
+      for (const VoxelKey& k : keys) {
+        TileInfo& info = tiles.at(k);
+        detail::read_at(staging_fd, info.staged_offset, static_cast<std::size_t>(info.staged_bytes), staging_path(), bytes);
+        detail::write_at(fresh, bytes, size, fresh_path);
+        moved.emplace_back(&info, size);
+        size += bytes.size();
+      }
+      if (::rename(fresh_path.c_str(), staging_path().c_str()) != 0)
+        throw StorageError(StorageError::Kind::kIo, staging_path(),
+                           "iwlomap: cannot rename " + fresh_path + " to " + staging_path() + ": " + std::strerror(errno));
+    } catch (...) {
+      ::close(fresh);
+      ::unlink(fresh_path.c_str());
+      throw;
+    }
+    ::close(staging_fd);
+    staging_fd = fresh;
+    for (const auto& [info, offset] : moved) info->staged_offset = offset;
+    staging_size = size;
+    staging_live = size;
+  }
+
+  // Closes and removes the staging file once no image in it is needed.
+  void drop_staging_if_unused() {
+    if (staging_fd < 0 || staging_live > 0) return;
+    ::close(staging_fd);
+    staging_fd = -1;
+    staging_size = 0;
+    ::unlink(staging_path().c_str());  // a leftover is deleted by the next open anyway
   }
 
   // Evicts least recently used unpinned tiles until one more fits. A dirty tile that cannot be
@@ -419,7 +470,7 @@ struct OutofcoreTileMapper::Impl {
       if (victim == resident.size()) throw std::logic_error("iwlomap: every resident tile is pinned");
       Tile& t = *resident[victim];
       TileInfo& info = tiles.at(t.key);
-      if (t.dirty) stage_tile(t, info, false);  // no fsync: flush() makes it durable
+      if (t.dirty) stage_tile(t, info);  // flush() makes it durable
       info.resident = nullptr;
       if (!info.on_disk()) tiles.erase(t.key);  // an empty tile that was never written
       resident.erase(resident.begin() + static_cast<std::ptrdiff_t>(victim));
@@ -505,6 +556,13 @@ struct OutofcoreTileMapper::Impl {
   // Sorts items 0..n-1 by tile (stable). voxel_key(i) gives item i's voxel key.
   template <class KeyOf>
   void route(std::size_t n, KeyOf&& voxel_key) {
+    assign_slots(n, voxel_key);
+    sort_by_slot(n);
+  }
+
+  // The slot (tile) of every item, in routing.slot_of.
+  template <class KeyOf>
+  void assign_slots(std::size_t n, KeyOf&& voxel_key) {
     routing.reset();
     routing.slot_of.resize(n);
     const std::int64_t e = tile_voxels;
@@ -522,6 +580,9 @@ struct OutofcoreTileMapper::Impl {
       }
       routing.slot_of[i] = last;
     }
+  }
+
+  void sort_by_slot(std::size_t n) {
     const std::size_t slots = routing.slot_tiles.size();
     routing.begin.assign(slots + 1, 0);
     for (std::size_t i = 0; i < n; ++i) ++routing.begin[routing.slot_of[i] + 1];
@@ -565,12 +626,43 @@ struct OutofcoreTileMapper::Impl {
   void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                    const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights) {
     const std::size_t skip = detail::prepare_batch(points, intensities, is_occupied, weights, resolution, batch);
-    route(batch.size(), [&](std::size_t i) { return batch[i].key; });
-    for_each_group([&](const std::uint32_t* slots, Tile* const* group, std::size_t count) {
-      for (std::size_t g = 0; g < count; ++g)
-        apply_observations(*group[g], routing.begin[slots[g]], routing.begin[slots[g] + 1]);
-    });
+    assign_slots(batch.size(), [&](std::size_t i) { return batch[i].key; });
+    if (routing.slot_tiles.size() <= cache_tiles) {
+      apply_in_call_order();
+    } else {
+      sort_by_slot(batch.size());
+      for_each_group([&](const std::uint32_t* slots, Tile* const* group, std::size_t count) {
+        for (std::size_t g = 0; g < count; ++g)
+          apply_observations(*group[g], routing.begin[slots[g]], routing.begin[slots[g] + 1]);
+      });
+    }
     skipped += skip;
+  }
+
+  // The common case: every tile of the batch fits in the cache at once. They are loaded first
+  // (so an I/O error changes nothing), then the batch is applied in call order exactly as the RAM
+  // backend does, without sorting it by tile.
+  void apply_in_call_order() {
+    PinScope pins(*this);
+    make_resident(routing.slot_tiles, slot_tile);
+    accessors.clear();
+    for (Tile* t : slot_tile) accessors.emplace_back(t->grid);
+    const std::size_t n = batch.size();
+    targets.resize(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      const detail::Observation& o = batch[i];
+      detail::VoxelBlock& b = accessors[routing.slot_of[i]].block(detail::block_of(o.key));
+      targets[i] = {&b, &b.voxels[static_cast<std::size_t>(detail::index_in_block(o.key))]};
+    }
+    constexpr std::size_t kAhead = 16;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (i + kAhead < n) __builtin_prefetch(targets[i + kAhead].second, 1);
+      const detail::Observation& o = batch[i];
+      detail::Voxel& v = *targets[i].second;
+      if (v.count == 0) count_new(*slot_tile[routing.slot_of[i]], *targets[i].first);
+      iwlo::apply_observation(v.log_odds, v.count, o.intensity, o.occupied_flag, o.weight, updater);
+    }
+    for (Tile* t : slot_tile) t->dirty = true;
   }
 
   void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
@@ -712,8 +804,8 @@ struct OutofcoreTileMapper::Impl {
           if (b->known > 0) fn(static_cast<const detail::VoxelBlock&>(*b));
         continue;
       }
-      const std::string path = newest_path(k, info);
-      const std::vector<std::uint8_t> bytes = detail::read_file(path);
+      std::vector<std::uint8_t> bytes;
+      const std::string path = read_image(k, info, bytes);
       const detail::TileHeader h =
           detail::parse_tile_header(bytes.data(), bytes.size(), bytes.size(), resolution, tile_voxels, k, path);
       if (h.known_voxels != info.file_known)
@@ -726,30 +818,49 @@ struct OutofcoreTileMapper::Impl {
 
   // ---- flush and clear ----
 
-  // Dirty resident tiles are written (with fsync) to their staged files, then every staged file is
-  // committed, then the directory is fsync'ed once. Every tile is attempted; the first error is
-  // rethrown at the end, and a tile that failed keeps its state (dirty in RAM, or staged) for a
-  // later flush.
+  // Writes every tile whose newest state is not in its tile file: dirty resident tiles from RAM,
+  // staged tiles from the staging file. Each goes to a temporary file that is fsync'ed and renamed
+  // over the tile file; the directory is fsync'ed once at the end. Every tile is attempted; the
+  // first error is rethrown at the end, and a tile that failed keeps its newest state (dirty in
+  // RAM, or staged) for a later flush.
   void flush() {
     std::exception_ptr first_error;
-    std::vector<Tile*> dirty;
-    for (auto& t : resident)
-      if (t->dirty) dirty.push_back(t.get());
-    std::sort(dirty.begin(), dirty.end(), [](const Tile* a, const Tile* b) { return a->key < b->key; });
-    for (Tile* t : dirty) {
-      try {
-        stage_tile(*t, tiles.at(t->key), true);
-      } catch (...) {
-        if (!first_error) first_error = std::current_exception();
-      }
-    }
-    std::vector<VoxelKey> staged;
+    std::vector<VoxelKey> keys;
     for (const auto& [k, info] : tiles)
-      if (info.staged) staged.push_back(k);
-    std::sort(staged.begin(), staged.end());
-    for (const VoxelKey& k : staged) {
+      if (info.staged || (info.resident != nullptr && info.resident->dirty)) keys.push_back(k);
+    std::sort(keys.begin(), keys.end());
+    std::vector<std::uint8_t> staged_image;
+    std::unique_ptr<detail::VoxelBlock> check_block_owner;
+    if (!keys.empty()) check_block_owner = std::make_unique<detail::VoxelBlock>(VoxelKey{});
+    detail::VoxelBlock* const check_block_ptr = check_block_owner.get();
+    for (const VoxelKey& k : keys) {
+      detail::VoxelBlock& check_block = *check_block_ptr;
+      TileInfo& info = tiles.at(k);
       try {
-        commit_tile(k, tiles.at(k));
+        Tile* t = info.resident;
+        const bool from_ram = t != nullptr && t->dirty;
+        if (from_ram) {
+          (void)detail::encode_tile(t->grid, resolution, tile_voxels, k, io_buffer);
+        } else {
+          // Checked before it replaces a tile file: a damaged staging file must never spoil one.
+          const std::string where = read_image(k, info, staged_image);
+          const detail::TileHeader h = detail::parse_tile_header(staged_image.data(), staged_image.size(),
+                                                                 staged_image.size(), resolution, tile_voxels, k, where);
+          detail::decode_tile(staged_image, h, tile_voxels, where, check_block, [](const detail::VoxelBlock&) {});
+          io_buffer.swap(staged_image);
+        }
+        const std::string path = tile_path(k);
+        detail::write_file_durably(path + kTempSuffix, path, io_buffer);
+        dir_sync_pending = true;
+        committed_bytes_total -= info.committed ? info.committed_bytes : 0;
+        info.committed = true;
+        info.committed_bytes = io_buffer.size();
+        committed_bytes_total += info.committed_bytes;
+        if (from_ram) {
+          info.file_known = t->known;
+          t->dirty = false;
+        }
+        unstage(info);
       } catch (...) {
         if (!first_error) first_error = std::current_exception();
       }
@@ -758,6 +869,7 @@ struct OutofcoreTileMapper::Impl {
       detail::sync_directory(dir);
       dir_sync_pending = false;
     }
+    drop_staging_if_unused();
     if (first_error) std::rethrow_exception(first_error);
   }
 
@@ -767,27 +879,25 @@ struct OutofcoreTileMapper::Impl {
     std::exception_ptr first_error;
     for (auto it = tiles.begin(); it != tiles.end();) {
       TileInfo& info = it->second;
-      try {
-        // The staged file first: if the committed one then cannot go, the tile is simply its
-        // committed state again.
-        if (info.staged) {
-          detail::remove_file(tile_path(it->first) + kTempSuffix);
-          info.staged = false;
-          info.file_known = info.committed ? committed_known(it->first) : 0;
+      unstage(info);  // the staging file goes as a whole below
+      if (info.committed) {
+        try {
+          detail::remove_file(tile_path(it->first));
+        } catch (...) {
+          if (!first_error) first_error = std::current_exception();
+          info.file_known = committed_known(it->first);
+          ++it;
+          continue;  // still on disk: it stays in the index with its file's contents
         }
-        if (info.committed) detail::remove_file(tile_path(it->first));
-      } catch (...) {
-        if (!first_error) first_error = std::current_exception();
-        ++it;
-        continue;  // still on disk: it stays in the index with its file's contents
       }
       it = tiles.erase(it);
     }
+    drop_staging_if_unused();
     total_known = 0;
-    disk_bytes_total = 0;
+    committed_bytes_total = 0;
     for (const auto& [k, info] : tiles) {
       total_known += info.file_known;
-      disk_bytes_total += info.bytes();
+      committed_bytes_total += info.committed_bytes;
     }
     skipped = 0;
     peak_resident = 0;
@@ -831,7 +941,10 @@ struct OutofcoreTileMapper::Impl {
   std::uint64_t tick = 0;
   std::size_t total_known = 0;
   std::size_t skipped = 0;
-  std::uint64_t disk_bytes_total = 0;
+  std::uint64_t committed_bytes_total = 0;  // tile files
+  int staging_fd = -1;
+  std::uint64_t staging_size = 0;  // bytes of the staging file
+  std::uint64_t staging_live = 0;  // bytes of its images still needed
   std::uint64_t meta_bytes = 0;
   std::size_t peak_resident = 0;
   bool dir_sync_pending = false;  // renames since the last directory fsync
@@ -845,6 +958,7 @@ struct OutofcoreTileMapper::Impl {
   std::vector<std::size_t> slot_last_chunk;
   std::vector<std::size_t> slot_group;
   std::vector<Tile*> slot_tile;
+  std::vector<detail::BlockAccessor> accessors;
   std::vector<std::size_t> group_chunks;
   std::vector<std::uint8_t> io_buffer;
 
@@ -1077,7 +1191,7 @@ void OutofcoreTileMapper::preload_region(const Eigen::Vector3d& min_bound, const
 size_t OutofcoreTileMapper::get_disk_usage() const {
   const Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
-  return static_cast<size_t>(m.disk_bytes_total + m.meta_bytes);
+  return static_cast<size_t>(m.committed_bytes_total + m.staging_size + m.meta_bytes);
 }
 
 size_t OutofcoreTileMapper::prune() {

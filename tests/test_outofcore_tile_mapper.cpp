@@ -172,11 +172,14 @@ std::vector<std::string> tile_files(const std::string& dir) {
   return names;
 }
 
-std::size_t count_temp_files(const std::string& dir) {
+// Files that hold no committed state: temporary tiles and the staging file of evicted tiles.
+std::size_t count_scratch_files(const std::string& dir) {
   std::size_t n = 0;
   for (const auto& e : fs::directory_iterator(dir)) {
     const std::string name = e.path().filename().string();
-    n += name.size() > 4 && name.compare(name.size() - 4, 4, ".tmp") == 0 ? 1 : 0;
+    n += (name.size() > 4 && name.compare(name.size() - 4, 4, ".tmp") == 0) || name.rfind("iwlomap_map.staging", 0) == 0
+             ? 1
+             : 0;
   }
   return n;
 }
@@ -409,7 +412,7 @@ TEST(OutofcoreTileMapper, OpensMapWrittenByAnotherProcessWithSameContents) {
   OutofcoreTileMapper disk(dir, tile_test::kResolution, tile_test::kTileSize, 4);
   EXPECT_GT(disk.get_num_tiles(), 4u);
   expect_same_map(disk, ram);
-  EXPECT_EQ(count_temp_files(dir), 0u);
+  EXPECT_EQ(count_scratch_files(dir), 0u);
 }
 
 using TileSnapshots = std::map<VoxelKey, Snapshot>;  // tile coordinate -> its voxels
@@ -466,7 +469,7 @@ TEST(OutofcoreTileMapper, ReopensWithCompleteTilesWhenWriterKilledAtRandomMoment
 
     std::unique_ptr<OutofcoreTileMapper> disk;
     ASSERT_NO_THROW(disk = std::make_unique<OutofcoreTileMapper>(dir, tile_test::kResolution, tile_test::kTileSize, 4));
-    EXPECT_EQ(count_temp_files(dir), 0u) << "leftover temporary files are removed when the map is opened";
+    EXPECT_EQ(count_scratch_files(dir), 0u) << "leftover temporary files are removed when the map is opened";
     const TileSnapshots got = by_tile(snapshot(*disk));
     ProbabilityUpdater ram(tile_test::kResolution);
     for (int k = 1; k <= last; ++k) tile_test::apply_step(ram, k);
@@ -707,11 +710,11 @@ TEST(OutofcoreTileMapper, KeepsPreviousTilesAndDirtyStateWhenDiskFull) {
   ProbabilityUpdater ram = ram_after_steps(4);
   expect_same_map(map, ram);
   map.flush();
-  EXPECT_EQ(count_temp_files(dir), 0u);
+  EXPECT_EQ(count_scratch_files(dir), 0u);
 }
 
-// An evicted dirty tile goes to a staged file without fsync; the committed tile changes only at
-// flush(), so a crash between flushes leaves the last flushed state.
+// An evicted dirty tile is appended to the staging file, not fsync'ed; the tile file changes only
+// at flush(), so a crash between flushes leaves the last flushed state.
 TEST(OutofcoreTileMapper, StagesEvictedTilesAndCommitsThemOnlyAtFlush) {
   const TempDir tmp;
   const std::string dir = tmp.sub("map");
@@ -722,20 +725,49 @@ TEST(OutofcoreTileMapper, StagesEvictedTilesAndCommitsThemOnlyAtFlush) {
   map.batch_update_iwlo(a, intensity, {true});
   map.flush();
   const std::string tile_a = (fs::path(dir) / "tile_0_0_0.iwt").string();
+  const std::string staging = (fs::path(dir) / "iwlomap_map.staging").string();
   const std::vector<std::uint8_t> flushed = read_bytes(tile_a);
+  EXPECT_FALSE(fs::exists(staging));
   map.batch_update_iwlo(a, intensity, {true});  // count 2, in RAM
   map.batch_update_iwlo(b, intensity, {true});  // evicts tile (0, 0, 0): staged
-  EXPECT_TRUE(fs::exists(tile_a + ".tmp"));
+  EXPECT_TRUE(fs::exists(staging));
   EXPECT_EQ(read_bytes(tile_a), flushed);
-  EXPECT_EQ(map.query(a.row(0).transpose())->count, 2u);  // read back from the staged file
-  std::size_t files = 0;  // tiles, staged tiles (now also (2, 0, 0), evicted by the query), metadata
+  EXPECT_FALSE(fs::exists(fs::path(dir) / "tile_2_0_0.iwt"));
+  EXPECT_EQ(map.query(a.row(0).transpose())->count, 2u);  // read back from the staging file
+  std::size_t files = 0;  // tile (0, 0, 0), the staging file (now also with (2, 0, 0)), metadata
   for (const auto& [name, bytes] : directory_image(dir)) files += bytes.size();
   EXPECT_EQ(map.get_disk_usage(), files);
-  EXPECT_EQ(count_temp_files(dir), 2u);
   map.flush();
-  EXPECT_EQ(count_temp_files(dir), 0u);
+  EXPECT_EQ(count_scratch_files(dir), 0u);
   EXPECT_NE(read_bytes(tile_a), flushed);
   EXPECT_EQ(tile_files(dir).size(), 2u);
+}
+
+// Tiles evicted again and again leave dead images in the staging file; it is rewritten with the
+// live ones when it is mostly dead, and the map stays equal to the RAM map throughout.
+TEST(OutofcoreTileMapper, CompactsStagingFileWhenTilesEvictedRepeatedly) {
+  const TempDir tmp;
+  const std::string dir = tmp.sub("map");
+  OutofcoreTileMapper map(dir, 0.1, 3.2, 1);  // 32-voxel tiles, one resident
+  ProbabilityUpdater ram(0.1);
+  std::mt19937 rng(12u);
+  const std::string staging = (fs::path(dir) / "iwlomap_map.staging").string();
+  std::uintmax_t largest = 0;
+  for (int round = 0; round < 12; ++round) {
+    for (const double x : {1.6, 4.8}) {  // tiles (0, 0, 0) and (1, 0, 0) take turns
+      const Batch batch = random_batch(rng, 20000, 1.5, Eigen::Vector3d(x, 1.6, 1.6));
+      map.batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+      ram.batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+    }
+    if (fs::exists(staging)) largest = std::max(largest, fs::file_size(staging));
+  }
+  // Each image is about 150 kB and 23 were appended: about 3.4 MB without compaction.
+  EXPECT_GT(largest, 400000u);
+  EXPECT_LT(largest, 1600000u);
+  expect_same_map(map, ram);
+  map.flush();
+  EXPECT_EQ(count_scratch_files(dir), 0u);
+  expect_same_map(map, ram);
 }
 
 TEST(OutofcoreTileMapper, ChangesNothingWhenEvictionWriteFails) {

@@ -37,18 +37,24 @@ class StorageError : public std::runtime_error {
 /// The out-of-core backend. Space is cut into cubic tiles of `tile_size` metres; each tile that
 /// holds a known voxel is one file `tile_<x>_<y>_<z>.iwt` of sparse 8^3 block records in the map
 /// directory, beside a small metadata file `iwlomap_map.meta` (format version, resolution, tile
-/// size) and a lock file `iwlomap_map.lock`. At most `cache_tiles` tiles are resident in RAM at
-/// once (least recently used ones are evicted; a tile being read for a query may come on top);
-/// updates go to resident tiles with exactly the RAM backend's math, so both backends give the
-/// same per-voxel log-odds and counts, bit for bit, for the same input.
+/// size), a lock file `iwlomap_map.lock` and, between flushes, the staging file described below.
+/// At most `cache_tiles` tiles are resident in RAM between calls (the least recently used one is
+/// evicted; a tile is read and checked before a victim is chosen, so for a moment there may be one
+/// more). Updates go to resident tiles with exactly the RAM backend's math, so both backends give
+/// the same per-voxel log-odds and counts, bit for bit, for the same input.
 ///
-/// Durability: a dirty tile is written when it is evicted and by flush(). Every tile is written to
-/// a temporary file in the map directory, fsync'ed, renamed over the old tile and the directory is
-/// fsync'ed, so a crash at any moment leaves each tile either in its previous or in its new state,
-/// never torn. Each tile holds a complete state: the observations of one call that fall in a tile
-/// are all applied before the tile can be evicted. The destructor flushes; it never throws, so a
-/// failure there is swallowed and the unwritten changes are lost while every file keeps its last
-/// complete state: call flush() first to see errors.
+/// Durability: a dirty tile that is evicted is appended to the staging file `iwlomap_map.staging`
+/// (one file for all evicted tiles, not fsync'ed: creating a file per eviction would cost more
+/// than the update itself); evicted tiles are read back from there. flush() writes every tile
+/// whose newest state is not in its tile file (dirty resident tiles, staged tiles) to a temporary
+/// file in the map directory, fsyncs it, renames it over the tile file and fsyncs the directory
+/// once; then the staging file is deleted. So tile files change only at a flush, and a crash at
+/// any moment leaves each tile in the state of the last flush that reached it (its previous or its
+/// new state, never a torn one); the next open deletes the staging file and leftover temporary
+/// files. The staging file is rewritten without dead images when more than half of it is dead
+/// (and it is 1 MiB or more); between flushes it holds at most about twice the evicted tiles. The
+/// destructor flushes; it never throws, so a failure there is swallowed and the unwritten changes
+/// are lost while every tile file keeps its last complete state: call flush() first to see errors.
 ///
 /// Reopening: a mapper constructed on an existing map directory continues that map with the same
 /// contents. The constructor reads the metadata and every tile header (not the whole tiles): a
@@ -61,8 +67,9 @@ class StorageError : public std::runtime_error {
 /// object, not to the map: they are not stored, set them again after reopening.
 ///
 /// I/O errors: a failed write (unwritable directory, full disk) throws StorageError (kIo) naming
-/// the tile; the previous file of that tile stays intact and the tile stays dirty in RAM, so a
-/// later flush() can still write it. Input errors (sizes, weights, keys) throw before anything
+/// the file; the previous file of that tile stays intact and the tile keeps its newest state (dirty
+/// in RAM, or staged), so a later flush() can still write it. A staged image is checked (checksum)
+/// before it replaces a tile file. Input errors (sizes, weights, keys) throw before anything
 /// changes, as in every backend. An update whose tiles fit in the cache loads them all before it
 /// changes any voxel, so a read or eviction error leaves the map unchanged; an update that spans
 /// more tiles than the cache is applied tile group by tile group, and an I/O error in a later group
@@ -135,13 +142,15 @@ class OutofcoreTileMapper final : public IMapperBackend {
   void clear() override;
   [[nodiscard]] std::string get_backend_type() const override { return "Disk"; }
 
-  /// Writes every dirty resident tile. All of them are attempted; the first error is thrown after.
+  /// Makes every change durable: dirty resident tiles and staged tiles are written to their tile
+  /// files (see the class comment). All of them are attempted; the first error is thrown after.
   void flush() override;
   /// Loads the tiles on disk that intersect the box [min_bound, max_bound] (metres), in (x, y, z)
   /// order of tile coordinates, at most cache_tiles of them. Throws std::invalid_argument for a
   /// non-finite bound or min > max on an axis.
   void preload_region(const Eigen::Vector3d& min_bound, const Eigen::Vector3d& max_bound) override;
-  /// Bytes of the map's files on disk (tiles and metadata); unflushed changes are not counted.
+  /// Bytes of the map's files on disk: tile files, staging file and metadata (resident dirty tiles
+  /// not yet written are not counted).
   [[nodiscard]] size_t get_disk_usage() const override;
   /// Frees the scratch buffers and the empty blocks of resident tiles; returns the voxel slots
   /// freed (known voxels are never removed).

@@ -282,6 +282,34 @@ void write_file_durably(const std::string& temp_path, const std::string& final_p
   commit_temp_file(temp_path, final_path, true);
 }
 
+int create_scratch_file(const std::string& path) {
+  const int fd = open_retry(path.c_str(), O_RDWR | O_CREAT | O_TRUNC, 0644);
+  if (fd < 0) throw_io(path, "cannot create", errno);
+  return fd;
+}
+
+void write_at(int fd, const std::vector<std::uint8_t>& data, std::uint64_t offset, const std::string& path) {
+  std::size_t done = 0;
+  while (done < data.size()) {
+    const ssize_t w = ::pwrite(fd, data.data() + done, data.size() - done, static_cast<off_t>(offset + done));
+    if (w < 0 && errno == EINTR) continue;
+    if (w <= 0) throw_io(path, "cannot write", w < 0 ? errno : EIO);
+    done += static_cast<std::size_t>(w);
+  }
+}
+
+void read_at(int fd, std::uint64_t offset, std::size_t size, const std::string& path, std::vector<std::uint8_t>& out) {
+  out.resize(size);
+  std::size_t done = 0;
+  while (done < size) {
+    const ssize_t r = ::pread(fd, out.data() + done, size - done, static_cast<off_t>(offset + done));
+    if (r < 0 && errno == EINTR) continue;
+    if (r < 0) throw_io(path, "cannot read", errno);
+    if (r == 0) throw_corrupt(path, "cut short: " + std::to_string(done) + " of " + std::to_string(size) + " bytes");
+    done += static_cast<std::size_t>(r);
+  }
+}
+
 void sync_directory(const std::string& directory) {
   Fd fd(open_retry(directory.c_str(), O_RDONLY | O_DIRECTORY));
   if (fd.get() < 0) throw_io(directory, "cannot open directory", errno);

@@ -100,6 +100,12 @@ void commit_temp_file(const std::string& temp_path, const std::string& final_pat
 /// write_temp_file() with fsync, then commit_temp_file().
 void write_file_durably(const std::string& temp_path, const std::string& final_path,
                         const std::vector<std::uint8_t>& data);
+/// Opens (creating and emptying) a scratch file for reading and writing; returns the descriptor.
+[[nodiscard]] int create_scratch_file(const std::string& path);
+/// Writes all of \p data at \p offset of \p fd (\p path names the file in errors).
+void write_at(int fd, const std::vector<std::uint8_t>& data, std::uint64_t offset, const std::string& path);
+/// Reads exactly \p size bytes at \p offset of \p fd into \p out (replaced).
+void read_at(int fd, std::uint64_t offset, std::size_t size, const std::string& path, std::vector<std::uint8_t>& out);
 /// fsync of a directory, so that renames and unlinks in it are durable.
 void sync_directory(const std::string& directory);
 /// Removes a file; a missing file is not an error.
