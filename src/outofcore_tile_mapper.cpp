@@ -1233,4 +1233,15 @@ size_t OutofcoreTileMapper::get_peak_resident_tiles() const {
   return m.peak_resident;
 }
 
+DiskMapInfo OutofcoreTileMapper::read_map_info(const std::string& directory) {
+  const std::string meta_path = (std::filesystem::path(directory) / kMetaName).string();
+  std::error_code ec;
+  if (!std::filesystem::exists(meta_path, ec))
+    throw StorageError(StorageError::Kind::kIo, meta_path,
+                       "iwlomap: " + directory + " holds no iwlomap map (" + meta_path + " is missing)");
+  std::uint64_t size = 0;
+  const MapMeta m = parse_meta(detail::read_file_prefix(meta_path, 1 << 16, size), meta_path);
+  return DiskMapInfo{m.resolution, m.tile_size, m.tile_voxels, m.version};
+}
+
 }  // namespace iwlomap

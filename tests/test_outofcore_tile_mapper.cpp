@@ -287,6 +287,33 @@ TEST_P(DiskMatchesRam, MatchesRamWhenScansWithMaxRangeThenReopened) {
   expect_same_map(reopened, ram);
 }
 
+TEST(OutofcoreTileMapper, ReadMapInfoReportsTheStoredGeometryWithoutOpening) {
+  const TempDir tmp;
+  {
+    OutofcoreTileMapper m(tmp.sub("map"), 0.1, 6.4, 2);
+    Eigen::MatrixXd p(1, 3);
+    p << 1.0, 2.0, 3.0;
+    m.batch_update_iwlo(p, Eigen::VectorXd::Constant(1, 200.0), {true});
+    m.flush();
+    // Readable while the map is open (no lock taken).
+    const DiskMapInfo info = OutofcoreTileMapper::read_map_info(tmp.sub("map"));
+    EXPECT_DOUBLE_EQ(info.resolution, 0.1);
+    EXPECT_DOUBLE_EQ(info.tile_size, 6.4);
+    EXPECT_EQ(info.tile_voxels, 64u);
+    EXPECT_GE(info.format_version, 1u);
+  }
+  const DiskMapInfo info = OutofcoreTileMapper::read_map_info(tmp.sub("map"));
+  OutofcoreTileMapper reopened(tmp.sub("map"), info.resolution, info.tile_size, 2);
+  EXPECT_EQ(reopened.get_num_nodes(), 1u);
+  try {
+    (void)OutofcoreTileMapper::read_map_info(tmp.sub("absent"));
+    FAIL() << "no exception";
+  } catch (const StorageError& e) {
+    EXPECT_EQ(e.kind(), StorageError::Kind::kIo);
+    EXPECT_NE(std::string(e.what()).find("holds no iwlomap map"), std::string::npos);
+  }
+}
+
 TEST(OutofcoreTileMapper, MatchesRamWhenScansCastOnSeveralThreads) {
   const TempDir tmp;
   ProbabilityUpdater ram(0.2);

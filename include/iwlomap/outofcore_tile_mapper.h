@@ -84,8 +84,22 @@ class StorageError : public std::runtime_error {
 ///
 /// Non-copyable, movable; a moved-from object throws std::logic_error from every method except
 /// destruction and assignment. Moving is not synchronised: do not move a mapper other threads use.
+/// What the metadata of a map directory says (OutofcoreTileMapper::read_map_info()).
+struct DiskMapInfo {
+  double resolution = 0.0;    ///< voxel edge in metres
+  double tile_size = 0.0;     ///< tile edge in metres
+  size_t tile_voxels = 0;     ///< tile edge in voxels
+  unsigned format_version = 0;
+};
+
 class OutofcoreTileMapper final : public IMapperBackend {
  public:
+  /// Reads the metadata of the map in \p directory without opening the map (no lock, no tiles),
+  /// so that a tool can open a map it did not create with the stored resolution and tile size.
+  /// Throws StorageError naming the file when there is no map there (kIo) or the metadata is
+  /// damaged (kCorrupt) or newer (kNewerVersion).
+  [[nodiscard]] static DiskMapInfo read_map_info(const std::string& directory);
+
   /// Opens the map in \p directory (created, with its parents, when missing) or creates a new one.
   /// \param directory   map directory (not empty)
   /// \param resolution  voxel edge in metres (> 0, finite)

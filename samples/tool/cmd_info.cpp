@@ -1,14 +1,13 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// `iwlomap info`: what a cloud file holds.
+// `iwlomap info`: what a cloud file or a stored map holds.
 
 #include "args.h"
 #include "cloud_io.h"
 #include "commands.h"
+#include "map_open.h"
 
-#ifdef IWLOMAP_HAVE_OCTOMAP
 #include <iwlomap/map_entropy.h>
-#include <iwlomap/octree_mapper.h>
-#endif
+#include <iwlomap/outofcore_tile_mapper.h>
 
 #include <cmath>
 #include <iostream>
@@ -22,29 +21,31 @@ const char* kHelp = R"(usage: iwlomap info FILE...
 
 Describes each FILE: for a .pcd or .ply cloud, the number of points (and of non-finite ones),
 the organisation, the bounding box in metres, the intensity range and the sensor origin; for a
-.bt or .ot OctoMap map (with the OctoMap layer), the known voxels, their bounding box and the map
-entropy: the Shannon entropy of the occupancy probabilities summed over the known voxels, in bits,
-and the unknown voxels of the bounding box (1 bit each for an explorer).
+stored map -- a disk-backend tile directory, or a .bt/.ot OctoMap file (with the OctoMap layer) --
+the resolution, the known and occupied voxels, their bounding box and the map entropy: the
+Shannon entropy of the occupancy probabilities summed over the known voxels, in bits, and the
+unknown voxels of the bounding box (1 bit each for an explorer); for a tile directory also the
+tiles and the bytes on disk.
 )";
 
-// An OctoMap file read as a map: size, bounds and entropy (iwlomap/map_entropy.h).
-void describe_octomap(const std::string& path) {
-#ifdef IWLOMAP_HAVE_OCTOMAP
-  OctreeMapper map;
-  map.load_from_file(path);  // takes the file's resolution
-  const double r = map.get_resolution();
-  std::cout << path << ": OctoMap map, " << map.get_num_nodes() << " known voxels at " << r << " m\n";
-  const auto box = known_voxel_box(map);
+// A stored map: size, bounds and entropy (iwlomap/map_entropy.h).
+void describe_map(const std::string& path) {
+  const auto map = open_map(path);
+  const double r = map->get_resolution();
+  std::cout << path << ": " << map->get_backend_type() << " map, " << map->get_num_nodes() << " known voxels at " << r
+            << " m, " << map->get_occupied_voxels(map->get_params().occupied_threshold).rows() << " occupied (p > "
+            << map->get_params().occupied_threshold << ")\n";
+  if (const auto* disk = dynamic_cast<const OutofcoreTileMapper*>(map.get()))
+    std::cout << "  tiles: " << disk->get_num_tiles() << " of " << disk->get_tile_size() << " m, "
+              << disk->get_disk_usage() << " bytes on disk\n";
+  const auto box = known_voxel_box(*map);
   if (!box) return;
   std::cout << "  bounds (m): x [" << box->min.x * r << ", " << (box->max.x + 1) * r << "] y [" << box->min.y * r << ", "
             << (box->max.y + 1) * r << "] z [" << box->min.z * r << ", " << (box->max.z + 1) * r << "]\n";
-  const BoxEntropy e = box_entropy(map, *box);
+  const BoxEntropy e = box_entropy(*map, *box);
   std::cout << "  entropy: " << e.known_bits << " bits over the known voxels (" << e.known_bits / static_cast<double>(e.known_voxels)
             << " per voxel); " << e.unknown_voxels << " unknown voxels in the bounds (" << e.total_bits()
             << " bits counting 1 bit each)\n";
-#else
-  throw std::runtime_error("'" + path + "': reading OctoMap files needs the OctoMap layer (build with -DIWLOMAP_WITH_OCTOMAP=ON)");
-#endif
 }
 }  // namespace
 
@@ -56,8 +57,8 @@ int run_info(const std::vector<std::string>& argv) {
   }
   if (args.positional().empty()) throw UsageError("no file given");
   for (const std::string& path : args.positional()) {
-    if (extension(path) == ".bt" || extension(path) == ".ot") {
-      describe_octomap(path);
+    if (is_map_path(path)) {
+      describe_map(path);
       continue;
     }
     const LoadedCloud in = load_cloud(path, std::numeric_limits<float>::quiet_NaN());

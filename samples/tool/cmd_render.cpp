@@ -9,6 +9,7 @@
 
 #ifdef IWLOMAP_HAVE_VIEWER
 #include "cloud_io.h"
+#include "map_open.h"
 
 #include <iwlomap/viewer/pcl_adapter.h>
 #include <iwlomap/viewer/snapshot_renderer.h>
@@ -27,11 +28,12 @@ namespace iwlomap::tool {
 
 namespace {
 
-const char* kHelp = R"(usage: iwlomap render IN.pcd|IN.ply -o OUT.png [options]
+const char* kHelp = R"(usage: iwlomap render IN.pcd|IN.ply|IN.bt|IN.ot|TILE_DIR -o OUT.png [options]
 
-Draws a voxel map into a PNG image, off screen: the points of IN are voxel centres (what
-'iwlomap map' writes), their intensity the occupancy probability. Only .pcd and .ply input for
-now (.bt files and disk-backend tile directories will follow with those backends).
+Draws a voxel map into a PNG image, off screen. A .pcd/.ply input holds voxel centres (what
+'iwlomap map' writes) with the occupancy probability as intensity; a stored map (a disk-backend
+tile directory, or a .bt/.ot OctoMap file with the OctoMap layer) is opened at its own resolution
+and its occupied voxels (p > 0.7) are drawn.
 
 Rendering needs an X display. On a machine without a screen run the command under a virtual one:
   xvfb-run -a -s "-screen 0 1280x1024x24 -noreset" iwlomap render ...
@@ -209,8 +211,10 @@ int run_render(const std::vector<std::string>& argv) {
   if (args.positional().size() > 1) throw UsageError("one input file only, got also '" + args.positional()[1] + "'");
   const std::string input = args.positional().front();
   const std::string in_ext = extension(input);
-  if (in_ext != ".pcd" && in_ext != ".ply")
-    throw UsageError("the input must be a .pcd or .ply cloud of voxel centres, got '" + input + "'");
+  const bool stored_map = is_map_path(input);
+  if (!stored_map && in_ext != ".pcd" && in_ext != ".ply")
+    throw UsageError("the input must be a .pcd or .ply cloud of voxel centres, a tile directory or a .bt/.ot map, got '" +
+                     input + "'");
   const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
   if (!output) throw UsageError("no output file (-o OUT.png)");
   if (extension(*output) != ".png") throw UsageError("the output must end in .png, got '" + *output + "'");
@@ -223,15 +227,22 @@ int run_render(const std::vector<std::string>& argv) {
   viewer::SnapshotRenderer::check_display();
 
   const auto started = std::chrono::steady_clock::now();
-  const LoadedCloud in = load_cloud(input, 1.0f);
-  const Eigen::MatrixXd voxels = viewer::cloud_to_voxels(*in.cloud);
+  Eigen::MatrixXd voxels;
   double resolution = 0.0;
-  if (resolution_option) {
-    resolution = *resolution_option;
-  } else if (const auto inferred = infer_resolution(voxels)) {
-    resolution = *inferred;
+  if (stored_map) {  // the occupied voxels of a stored map, at its own resolution
+    const auto map = open_map(input);
+    voxels = map->get_occupied_voxels(map->get_params().occupied_threshold);
+    resolution = map->get_resolution();
   } else {
-    throw UsageError("cannot infer the voxel size of '" + input + "' (fewer than two distinct voxels): give --resolution");
+    voxels = viewer::cloud_to_voxels(*load_cloud(input, 1.0f).cloud);
+  }
+  if (!stored_map) {  // a cloud does not say its voxel size: take the option, or infer it
+    if (resolution_option)
+      resolution = *resolution_option;
+    else if (const auto inferred = infer_resolution(voxels))
+      resolution = *inferred;
+    else
+      throw UsageError("cannot infer the voxel size of '" + input + "' (fewer than two distinct voxels): give --resolution");
   }
   if (options.color_by == viewer::ColorBy::kProbability && voxels.rows() > 0 &&
       (voxels.col(3).minCoeff() < 0.0 || voxels.col(3).maxCoeff() > 1.0))
@@ -240,7 +251,7 @@ int run_render(const std::vector<std::string>& argv) {
   viewer::SnapshotRenderer::render_png(voxels, resolution, options, *output);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
   std::cout << "wrote " << *output << ": " << voxels.rows() << " voxels of " << resolution << " m"
-            << (resolution_option ? "" : " (inferred)") << ", " << options.width << " x " << options.height << " in "
+            << (stored_map ? "" : resolution_option ? "" : " (inferred)") << ", " << options.width << " x " << options.height << " in "
             << seconds << " s\n";
   return 0;
 #endif

@@ -11,6 +11,7 @@ namespace iwlomap::tool {
 
 int run_map(const std::vector<std::string>& args);
 int run_info(const std::vector<std::string>& args);
+int run_export(const std::vector<std::string>& args);
 int run_generate(const std::vector<std::string>& args);
 int run_render(const std::vector<std::string>& args);
 int run_sonar(const std::vector<std::string>& args);

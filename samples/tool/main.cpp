@@ -20,9 +20,10 @@ Probabilistic 3D occupancy mapping of intensity point clouds (IWLO).
 
 commands:
   map        integrate .pcd/.ply clouds into one map, write the occupied voxels
-  info       describe a .pcd or .ply file
+  info       describe a .pcd/.ply cloud or a stored map (tile directory, .bt, .ot)
+  export     write a stored map as .pcd, .ply, .bt or .ot
   generate   write a synthetic lidar scan (.pcd) to try the tool on
-  render     draw a voxel map (.pcd/.ply) into a PNG image, off screen
+  render     draw a voxel map (.pcd/.ply, tile directory, .bt/.ot) into a PNG image, off screen
   sonar      map imaging-sonar pings (Oculus .raw) into one map, write the occupied voxels
   pyramid    write a map's multi-resolution max grids (Cartographer's precomputation grids) as PNGs
 
@@ -50,6 +51,7 @@ int main(int argc, char** argv) {
     if (command == "map") return run_map(rest);
     if (command == "info") return run_info(rest);
     if (command == "generate") return run_generate(rest);
+    if (command == "export") return run_export(rest);
     if (command == "render") return run_render(rest);
     if (command == "sonar") return run_sonar(rest);
     if (command == "pyramid") return run_pyramid(rest);

@@ -5,7 +5,10 @@
 #include <iwlomap/octree_mapper.h>  // makes "OctoMap" available to make_backend()
 #endif
 
+#include <iwlomap/outofcore_tile_mapper.h>
+
 #include <algorithm>
+#include <filesystem>
 #include <cctype>
 
 namespace iwlomap::tool {
@@ -14,7 +17,7 @@ std::set<std::string> map_value_options() {
   return {"--resolution", "--backend", "--tiles", "--max-range", "--sensor", "--threshold",
           "--sharpness", "--decay-rate", "--min-alpha", "--l-min", "--l-max", "--l-occ", "--l-free",
           "--intensity-threshold", "--intensity-max", "--adaptive-threshold", "--adaptive-max-ratio",
-          "--threads"};
+          "--threads", "--tile-size", "--cache-tiles"};
 }
 
 std::set<std::string> map_flag_options() { return {"--no-rays", "--no-adaptive"}; }
@@ -31,7 +34,10 @@ std::string map_options_help() {
 map:
   --resolution M            voxel edge in metres (default 0.05)
   --backend ram|disk|octomap  map storage (default ram)
-  --tiles DIR               map directory of the disk backend
+  --tiles DIR               map directory of the disk backend; an existing map there is continued
+                            (with its stored resolution and tile size unless given)
+  --tile-size M             disk backend: tile edge in metres, a multiple of 8 voxels (default 10)
+  --cache-tiles N           disk backend: tiles kept in RAM (default 16)
   --max-range M             clip rays longer than M metres; those points give no hit (default: none)
   --no-rays                 no ray casting: every point is one observation, occupied iff its
                             intensity exceeds the threshold (sonar pipelines)
@@ -76,7 +82,7 @@ MapSetup map_setup_from(const Args& args) {
     throw UsageError(e.what());
   }
 
-  const double resolution = args.number("--resolution", 0.05);
+  double resolution = args.number("--resolution", 0.05);
   if (!(resolution > 0.0)) throw UsageError("--resolution must be > 0");
   s.max_range = args.number("--max-range", -1.0);
   s.ray_casting = !args.flag("--no-rays");
@@ -89,8 +95,20 @@ MapSetup map_setup_from(const Args& args) {
     const auto tiles = args.value("--tiles");
     if (!tiles) throw UsageError("--backend disk needs --tiles DIR");
     options.directory = *tiles;
-  } else if (args.has("--tiles")) {
-    throw UsageError("--tiles is only for --backend disk");
+    options.tile_size = args.number("--tile-size", options.tile_size);
+    const long cache = args.integer("--cache-tiles", static_cast<long>(options.cache_tiles));
+    if (cache < 1) throw UsageError("--cache-tiles must be >= 1");
+    options.cache_tiles = static_cast<std::size_t>(cache);
+    // An existing map continues with its stored geometry unless the options say otherwise
+    // (and then the backend reports the mismatch).
+    std::error_code ec;
+    if (std::filesystem::exists(std::filesystem::path(*tiles) / "iwlomap_map.meta", ec)) {
+      const DiskMapInfo info = OutofcoreTileMapper::read_map_info(*tiles);
+      if (!args.has("--resolution")) resolution = info.resolution;
+      if (!args.has("--tile-size")) options.tile_size = info.tile_size;
+    }
+  } else if (args.has("--tiles") || args.has("--tile-size") || args.has("--cache-tiles")) {
+    throw UsageError("--tiles, --tile-size and --cache-tiles are only for --backend disk");
   } else if (backend != "ram" && backend != "octomap") {
     throw UsageError("--backend must be ram, disk or octomap, got '" + backend + "'");
   }

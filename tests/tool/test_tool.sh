@@ -30,17 +30,20 @@ expect() {  # expect NAME CONDITION-COMMAND...
   if "$@"; then passed=$((passed + 1)); else failed=$((failed + 1)); echo "FAIL $name"; fi
 }
 one_line() { [ "$(wc -l <"$WORK/$1.err")" -eq 1 ]; }
+# Same voxels, maybe in another order: compare the sorted ASCII rows of two .pcd files.
+sorted_rows() { pcl_convert_pcd_ascii_binary "$1" "$1.ascii.pcd" 0 >/dev/null && grep -E '^-?[0-9]' "$1.ascii.pcd" | sort; }
+same_voxels() { bash -c "$(declare -f sorted_rows); diff <(sorted_rows '$1') <(sorted_rows '$2') >/dev/null && test \$(sorted_rows '$1' | wc -l) -gt 100"; }
 
 check help 0 "$TOOL" --help
 expect help_lists_map grep -q "map" "$WORK/help.out"
 check no_command 2 "$TOOL"
 check unknown_command 2 "$TOOL" frobnicate
 expect unknown_command_one_line one_line unknown_command
-for cmd in map info generate; do
+for cmd in map info generate export; do
   check "help_$cmd" 0 "$TOOL" "$cmd" --help
   expect "help_${cmd}_usage" grep -q "usage: iwlomap $cmd" "$WORK/help_$cmd.out"
 done
-expect map_help_lists_every_option bash -c "for o in --octomap --snapshot --threads --async --resolution --backend --tiles --max-range --no-rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
+expect map_help_lists_every_option bash -c "for o in --tile-size --cache-tiles --octomap --snapshot --threads --async --resolution --backend --tiles --max-range --no-rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
 
 check generate 0 "$TOOL" generate -o "$WORK/scan.pcd" --rings 16 --columns 256
 check info 0 "$TOOL" info "$WORK/scan.pcd"
@@ -62,9 +65,7 @@ if has_layer octomap; then
   expect converted_ot_exists test -s "$WORK/map_converted.ot"
   check bad_octomap_ext 2 "$TOOL" map "$WORK/scan.pcd" --octomap "$WORK/map.txt"
   check backend_octomap 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --backend octomap -o "$WORK/occ_octomap.pcd"
-  # Same voxels, maybe in another order: compare the sorted ASCII rows.
-  sorted_rows() { pcl_convert_pcd_ascii_binary "$1" "$1.ascii.pcd" 0 >/dev/null && grep -E '^-?[0-9]' "$1.ascii.pcd" | sort; }
-  expect octomap_backend_same_voxels bash -c "$(declare -f sorted_rows); diff <(sorted_rows '$WORK/occ_octomap.pcd') <(sorted_rows '$WORK/occupied.pcd') >/dev/null && test \$(sorted_rows '$WORK/occupied.pcd' | wc -l) -gt 100"
+  expect octomap_backend_same_voxels same_voxels "$WORK/occ_octomap.pcd" "$WORK/occupied.pcd"
 
 else
   # Without the OctoMap layer the option fails clearly before any work.
@@ -85,6 +86,35 @@ if has_layer viewer; then
 else
   check snapshot_without_layer 1 "$TOOL" map "$WORK/scan.pcd" --snapshot "$WORK/map.png"
   expect snapshot_without_layer_says_so grep -q "no VTK viewer layer" "$WORK/snapshot_without_layer.err"
+fi
+
+# The disk backend: a tile directory is created, continued by a second run with its stored
+# geometry, described by info, exported and rendered; the same voxels as the RAM backend.
+check map_disk 0 "$TOOL" map "$WORK/scan.pcd" --backend disk --tiles "$WORK/tiles" --resolution 0.2 --tile-size 6.4 --cache-tiles 2 --sensor lidar -o "$WORK/occ_disk.pcd"
+expect disk_same_voxels_as_ram same_voxels "$WORK/occ_disk.pcd" "$WORK/occupied.pcd"
+check map_disk_continue 0 "$TOOL" map "$WORK/scan.pcd" --backend disk --tiles "$WORK/tiles" --sensor lidar
+expect disk_continue_keeps_resolution grep -q "at 0.2 m, Disk backend" "$WORK/map_disk_continue.out"
+check disk_wrong_resolution 1 "$TOOL" map "$WORK/scan.pcd" --backend disk --tiles "$WORK/tiles" --resolution 0.1
+expect disk_wrong_resolution_says_stored grep -q "created with resolution" "$WORK/disk_wrong_resolution.err"
+check info_tiles 0 "$TOOL" info "$WORK/tiles"
+expect info_tiles_reports grep -q "Disk map, .* known voxels at 0.2 m" "$WORK/info_tiles.out"
+expect info_tiles_entropy grep -q "entropy: .* bits" "$WORK/info_tiles.out"
+check export_tiles_pcd 0 "$TOOL" export "$WORK/tiles" -o "$WORK/exported.pcd"
+check pcl_reads_export 0 pcl_pcd2ply "$WORK/exported.pcd" "$WORK/exported_pcl.ply"
+check export_not_a_map 2 "$TOOL" export "$WORK/scan.pcd" -o "$WORK/x.pcd"
+check export_missing_file 1 "$TOOL" export "$WORK/no_such_map.bt" -o "$WORK/x.pcd"
+check export_no_map_in_dir 1 "$TOOL" export "$WORK" -o "$WORK/x.pcd"
+expect export_no_map_says_so grep -q "holds no iwlomap map" "$WORK/export_no_map_in_dir.err"
+check tiles_only_for_disk 2 "$TOOL" map "$WORK/scan.pcd" --tiles "$WORK/tiles"
+if has_layer octomap; then
+  check export_tiles_bt 0 "$TOOL" export "$WORK/tiles" -o "$WORK/exported.bt"
+  check convert_octree_reads_export 0 convert_octree "$WORK/exported.bt" "$WORK/exported.ot"
+  check info_bt 0 "$TOOL" info "$WORK/exported.bt"
+  expect info_bt_reports grep -q "OctoMap map, .* known voxels at 0.2 m" "$WORK/info_bt.out"
+fi
+if has_layer viewer && [ -n "${DISPLAY:-}" ]; then
+  check render_tiles 0 "$TOOL" render "$WORK/tiles" -o "$WORK/tiles.png"
+  expect render_tiles_png test -s "$WORK/tiles.png"
 fi
 
 # Threads and the background integration give the same map.

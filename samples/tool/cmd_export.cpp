@@ -1,0 +1,73 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// `iwlomap export`: a stored map (disk-backend tile directory, or .bt/.ot) to a cloud or OctoMap file.
+
+#include "args.h"
+#include "cloud_io.h"
+#include "commands.h"
+#include "map_open.h"
+
+#include <iwlomap/filters/cloud_conversions.h>
+
+#ifdef IWLOMAP_HAVE_OCTOMAP
+#include <iwlomap/octree_mapper.h>
+#endif
+
+#include <iostream>
+#include <stdexcept>
+
+namespace iwlomap::tool {
+
+namespace {
+const char* kHelp = R"(usage: iwlomap export MAP -o OUT.pcd|OUT.ply|OUT.bt|OUT.ot [--threshold P]
+
+Writes a stored map in another format. MAP is a disk-backend tile directory (as written by
+'iwlomap map --backend disk --tiles DIR') or an OctoMap .bt/.ot file; it is opened with its stored
+resolution and read tile by tile, so a map larger than RAM exports with bounded memory.
+
+  -o, --output FILE   .pcd / .ply: the occupied voxels (centres, intensity = probability);
+                      .bt / .ot: the whole map as an OctoMap file (needs the OctoMap layer)
+  --threshold P       voxels with probability > P are occupied (default 0.7)
+  --cache-tiles N     tiles a tile directory may hold in RAM while exporting (default 4)
+)";
+}  // namespace
+
+int run_export(const std::vector<std::string>& argv) {
+  const Args args(argv, {"-o", "--output", "--threshold", "--cache-tiles"}, {"-h", "--help"});
+  if (args.flag("-h") || args.flag("--help")) {
+    std::cout << kHelp;
+    return 0;
+  }
+  if (args.positional().size() != 1) throw UsageError("give exactly one map (a tile directory, .bt or .ot)");
+  const std::string input = args.positional().front();
+  if (!is_map_path(input)) throw UsageError("'" + input + "' is not a tile directory, .bt or .ot file");
+  const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
+  if (!output) throw UsageError("no output file (-o OUT.pcd|.ply|.bt|.ot)");
+  const std::string ext = extension(*output);
+  if (ext != ".pcd" && ext != ".ply" && ext != ".bt" && ext != ".ot")
+    throw UsageError("the output must end in .pcd, .ply, .bt or .ot, got '" + *output + "'");
+  const double threshold = args.number("--threshold", 0.7);
+  if (!(threshold > 0.0 && threshold < 1.0)) throw UsageError("--threshold must be in (0, 1)");
+  const long cache = args.integer("--cache-tiles", 4);
+  if (cache < 1) throw UsageError("--cache-tiles must be >= 1");
+
+  const auto map = open_map(input, static_cast<std::size_t>(cache));
+  if (ext == ".bt" || ext == ".ot") {
+#ifdef IWLOMAP_HAVE_OCTOMAP
+    IwloParams p = map->get_params();
+    p.occupied_threshold = threshold;  // .bt stores occupied / free by this threshold
+    map->set_params(p);
+    export_octomap(*map, *output);
+#else
+    throw std::runtime_error("writing OctoMap files needs the OctoMap layer (build with -DIWLOMAP_WITH_OCTOMAP=ON)");
+#endif
+  } else {
+    pcl::PointCloud<pcl::PointXYZI> occupied;
+    occupied_to_cloud(*map, threshold, occupied);
+    save_cloud(*output, occupied);
+  }
+  std::cout << "wrote " << *output << " from " << input << " (" << map->get_backend_type() << " map, "
+            << map->get_num_nodes() << " known voxels at " << map->get_resolution() << " m)\n";
+  return 0;
+}
+
+}  // namespace iwlomap::tool
