@@ -9,6 +9,7 @@
 #include "detail/scan_scratch.h"
 
 #include <algorithm>
+#include <atomic>
 #include <stdexcept>
 #include <thread>
 
@@ -123,19 +124,23 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
     // so are their blocks: no two threads touch one voxel, and the per-voxel results equal the
     // single-thread ones.
     std::vector<std::size_t> newly_known(t, 0);
-    std::vector<std::thread> workers;
-    for (std::size_t k = 0; k < t; ++k) {
-      workers.emplace_back([&m, &newly_known, k, t, chunks] {
-        detail::VoxelBlock* last = nullptr;
-        std::size_t known = 0;
-        m.scratch.for_each_free(chunks * k / t, chunks * (k + 1) / t, [&](const VoxelKey& block_key, int index) {
+    std::atomic<std::size_t> next{0};  // chunks near the sensor hold far more voxels: share them out
+    const auto work = [&m, &newly_known, &next, chunks](std::size_t k) {
+      constexpr std::size_t kGrain = 4;
+      detail::VoxelBlock* last = nullptr;
+      std::size_t known = 0;
+      for (std::size_t c = next.fetch_add(kGrain); c < chunks; c = next.fetch_add(kGrain)) {
+        m.scratch.for_each_free(c, std::min(c + kGrain, chunks), [&](const VoxelKey& block_key, int index) {
           if (last == nullptr || last->key != block_key) last = m.grid.find(block_key);
           if (Impl::update_voxel(*last, last->voxels[static_cast<std::size_t>(index)], 0.0, false, 1.0, m.updater))
             ++known;
         });
-        newly_known[k] = known;
-      });
-    }
+      }
+      newly_known[k] = known;
+    };
+    std::vector<std::thread> workers;
+    for (std::size_t k = 1; k < t; ++k) workers.emplace_back(work, k);
+    work(0);  // the calling thread works too
     for (auto& w : workers) w.join();
     for (const std::size_t n : newly_known) m.known += n;
   }

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <atomic>
 #include <exception>
 #include <thread>
 
@@ -44,7 +45,7 @@ void ScanScratch::clear() {
 
 std::size_t ScanScratch::collect_range(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                        const Eigen::VectorXd& intensities, double max_range, double resolution,
-                                       Eigen::Index begin, Eigen::Index end) {
+                                       Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad) {
   const bool clip = max_range > 0.0;
   std::size_t skipped = 0;
   const auto mark = [this](const VoxelKey& k) { mark_free(k); };
@@ -59,7 +60,11 @@ std::size_t ScanScratch::collect_range(const Eigen::Vector3d& origin, const Eige
     const double range = d.norm();
     const bool beyond = clip && range > max_range;
     const Eigen::Vector3d end_point = beyond ? Eigen::Vector3d(origin + d * (max_range / range)) : p;
-    if (!is_representable(end_point, resolution)) throw_out_of_range(i, p, resolution);
+    if (!is_representable(end_point, resolution)) {
+      if (first_bad == nullptr) throw_out_of_range(i, p, resolution);
+      *first_bad = std::min(*first_bad, i);
+      continue;
+    }
     cast_ray(origin, end_point, resolution, mark);
     if (!beyond) add_hit(world_to_key(p, resolution), intensity);
   }
@@ -85,31 +90,39 @@ std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::Mat
   // Below a few thousand rays a thread costs more than it saves.
   const Eigen::Index useful = std::max<Eigen::Index>(1, n / 2048);
   const int t = static_cast<int>(std::min<Eigen::Index>(std::max(threads, 1), useful));
-  if (t == 1) return collect_range(origin, points, intensities, max_range, resolution, 0, n);
+  if (t == 1) return collect_range(origin, points, intensities, max_range, resolution, 0, n, nullptr);
 
-  helpers_.resize(static_cast<std::size_t>(t));
+  // Rays differ in length by an order of magnitude (a scan's lower rings hit the ground near the
+  // sensor), so threads take blocks of rays from a shared counter rather than fixed ranges. Which
+  // thread casts which ray does not matter: OR and max do not depend on the order. An
+  // out-of-range point is recorded, not thrown, so the error reported is always the one of the
+  // lowest index, as with one thread.
+  constexpr Eigen::Index kGrain = 1024;
+  std::atomic<Eigen::Index> next{0};
+  helpers_.resize(static_cast<std::size_t>(t - 1));
   std::vector<std::size_t> skipped(static_cast<std::size_t>(t), 0);
-  std::vector<std::exception_ptr> errors(static_cast<std::size_t>(t));
+  std::vector<Eigen::Index> first_bad(static_cast<std::size_t>(t), n);
+  const auto work = [&](ScanScratch& into, std::size_t k) {
+    for (Eigen::Index b = next.fetch_add(kGrain); b < n; b = next.fetch_add(kGrain))
+      skipped[k] += into.collect_range(origin, points, intensities, max_range, resolution, b, std::min(b + kGrain, n),
+                                       &first_bad[k]);
+  };
   std::vector<std::thread> workers;
-  workers.reserve(static_cast<std::size_t>(t));
-  for (int k = 0; k < t; ++k) {
-    const Eigen::Index begin = n * k / t, end = n * (k + 1) / t;
+  workers.reserve(static_cast<std::size_t>(t - 1));
+  for (int k = 1; k < t; ++k) {
     const auto idx = static_cast<std::size_t>(k);
-    workers.emplace_back([&, begin, end, idx] {
-      try {
-        helpers_[idx].clear();
-        skipped[idx] = helpers_[idx].collect_range(origin, points, intensities, max_range, resolution, begin, end);
-      } catch (...) {
-        errors[idx] = std::current_exception();
-      }
+    workers.emplace_back([&, idx] {
+      helpers_[idx - 1].clear();
+      work(helpers_[idx - 1], idx);
     });
   }
+  work(*this, 0);  // the calling thread casts into this scratch directly
   for (auto& w : workers) w.join();
-  for (const auto& e : errors)
-    if (e) std::rethrow_exception(e);
-  std::size_t total = 0;
-  for (int k = 0; k < t; ++k) {
-    merge(helpers_[static_cast<std::size_t>(k)]);
+  const Eigen::Index bad = *std::min_element(first_bad.begin(), first_bad.end());
+  if (bad < n) throw_out_of_range(bad, points.row(bad).transpose(), resolution);
+  std::size_t total = skipped[0];
+  for (int k = 1; k < t; ++k) {
+    merge(helpers_[static_cast<std::size_t>(k - 1)]);
     total += skipped[static_cast<std::size_t>(k)];
   }
   return total;

@@ -16,7 +16,9 @@
 
 #include <Eigen/Core>
 
+#include <algorithm>
 #include <array>
+#include <tuple>
 #include <cstddef>
 #include <cstdint>
 #include <vector>
@@ -42,17 +44,27 @@ class ScanScratch {
   /// Casts every ray of one scan into the scratch (cleared first). Inputs must have passed
   /// check_scan_input(). Throws std::out_of_range for an endpoint whose key does not fit in int32
   /// (the map is untouched, since nothing is applied yet). Returns the number of skipped points.
-  /// With \p threads > 1 the points are split into that many contiguous ranges, each cast into a
-  /// scratch of its own on its own thread, and the scratches are merged (OR of the free bits, max
-  /// of the hit intensities): the result is bit-identical to threads = 1. When several ranges hold
-  /// an out-of-range point, the error of the first range is thrown, as in one thread.
+  /// With \p threads > 1 the threads take blocks of rays from a shared counter, each casting into a
+  /// scratch of its own, and the scratches are merged (OR of the free bits, max of the hit
+  /// intensities): the observations are bit-identical to threads = 1. An out-of-range point
+  /// throws the error of the lowest such index, as in one thread.
   std::size_t collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                       const Eigen::VectorXd& intensities, double max_range, double resolution, int threads = 1);
 
-  /// Calls fn(block_key) for every grid block (8^3) that holds an observation, free or hit.
+  /// Calls fn(block_key) for every grid block (8^3) that holds an observation, free or hit, in
+  /// (z, y, x) order of chunk keys: an order that depends on the scan only, never on which thread
+  /// cast which ray, so backends that allocate blocks in this order stay identical for any count.
   template <class Fn>
   void for_each_block(Fn&& fn) const {
-    for (const Chunk& c : chunks_)
+    std::vector<std::size_t> order(chunks_.size());
+    for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+    std::sort(order.begin(), order.end(), [this](std::size_t a, std::size_t b) {
+      const VoxelKey& ka = chunks_[a].key;
+      const VoxelKey& kb = chunks_[b].key;
+      return std::tie(ka.z, ka.y, ka.x) < std::tie(kb.z, kb.y, kb.x);
+    });
+    for (const std::size_t ci : order) {
+      const Chunk& c = chunks_[ci];
       for (int b = 0; b < kBlocksPerChunk; ++b) {
         std::uint64_t any = 0;
         for (int w = 0; w < kWordsPerBlock; ++w) {
@@ -61,6 +73,7 @@ class ScanScratch {
         }
         if (any != 0) fn(block_key_of(c, b));
       }
+    }
   }
 
   /// The free-voxel part of for_each_observation() restricted to chunks [begin, end), for
@@ -113,9 +126,11 @@ class ScanScratch {
             c.key.z * kBlocksPerChunkEdge + (b >> 4)};
   }
   void clear();
+  // Casts rays [begin, end). An out-of-range point throws, or with \p first_bad is recorded there
+  // (the lowest index) and skipped.
   std::size_t collect_range(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                             const Eigen::VectorXd& intensities, double max_range, double resolution,
-                            Eigen::Index begin, Eigen::Index end);
+                            Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad);
   void merge(const ScanScratch& other);
 
   // Bit of voxel k inside its chunk: block-major, then index_in_block().
