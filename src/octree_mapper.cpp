@@ -6,6 +6,7 @@
 #include "detail/absolute_log_odds.h"
 #include "detail/batch_input.h"
 #include "detail/block_grid.h"
+#include "detail/grid_reads.h"
 #include "detail/param_setters.h"
 #include "detail/scan_scratch.h"
 
@@ -841,38 +842,18 @@ IwloParams OctreeMapper::get_params() const { return impl().updater.params(); }
 Eigen::MatrixXd OctreeMapper::get_occupied_voxels(double min_probability) {
   const double threshold = detail::resolve_min_probability(min_probability);
   const Impl& m = impl();
-  std::vector<double> rows;
-  for (const auto& b : m.grid.blocks()) {
-    for (int i = 0; i < detail::kBlockVoxels; ++i) {
-      const detail::Voxel& v = b->voxels[static_cast<std::size_t>(i)];
-      if (v.count == 0) continue;
-      const double p = iwlo::probability(v.log_odds);
-      if (!(p > threshold)) continue;
-      const Eigen::Vector3d c = key_to_center(detail::voxel_of(b->key, i), m.resolution);
-      rows.insert(rows.end(), {c.x(), c.y(), c.z(), p});
-    }
-  }
+  const std::vector<double> rows = detail::occupied_rows(m.grid, m.resolution, threshold);
   return detail::rows_to_matrix(rows);
 }
 
 std::optional<VoxelState> OctreeMapper::query(const Eigen::Vector3d& point) const {
   const Impl& m = impl();
   const VoxelKey key = world_to_key_checked(point, m.resolution);
-  const detail::VoxelBlock* b = m.grid.find(detail::block_of(key));
-  if (b == nullptr) return std::nullopt;
-  const detail::Voxel& v = b->voxels[static_cast<std::size_t>(detail::index_in_block(key))];
-  if (v.count == 0) return std::nullopt;
-  return VoxelState{v.log_odds, iwlo::probability(v.log_odds), v.count};
+  return detail::query_voxel(m.grid, key);
 }
 
 void OctreeMapper::for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const {
-  for (const auto& b : impl().grid.blocks()) {
-    for (int i = 0; i < detail::kBlockVoxels; ++i) {
-      const detail::Voxel& v = b->voxels[static_cast<std::size_t>(i)];
-      if (v.count == 0) continue;
-      visit(detail::voxel_of(b->key, i), VoxelState{v.log_odds, iwlo::probability(v.log_odds), v.count});
-    }
-  }
+  detail::for_each_known(impl().grid, [&visit](const VoxelKey& k, const detail::Voxel& v) { visit(k, detail::state_of(v)); });
 }
 
 MemoryStats OctreeMapper::get_memory_usage() const {

@@ -4,6 +4,7 @@
 #include "detail/absolute_log_odds.h"
 #include "detail/batch_input.h"
 #include "detail/block_grid.h"
+#include "detail/grid_reads.h"
 #include "detail/flat_key_map.h"
 #include "detail/param_setters.h"
 #include "detail/scan_scratch.h"
@@ -1091,11 +1092,7 @@ std::optional<VoxelState> OutofcoreTileMapper::query(const Eigen::Vector3d& poin
   } else {
     m.touch(*tile);
   }
-  const detail::VoxelBlock* b = tile->grid.find(detail::block_of(key));
-  if (b == nullptr) return std::nullopt;
-  const detail::Voxel& v = b->voxels[static_cast<std::size_t>(detail::index_in_block(key))];
-  if (v.count == 0) return std::nullopt;
-  return VoxelState{v.log_odds, iwlo::probability(v.log_odds), v.count};
+  return detail::query_voxel(tile->grid, key);
 }
 
 void OutofcoreTileMapper::for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const {
@@ -1106,7 +1103,7 @@ void OutofcoreTileMapper::for_each_voxel(const std::function<void(const VoxelKey
     for (int i = 0; i < detail::kBlockVoxels; ++i) {
       const detail::Voxel& v = b.voxels[static_cast<std::size_t>(i)];
       if (v.count == 0) continue;
-      visit(detail::voxel_of(b.key, i), VoxelState{v.log_odds, iwlo::probability(v.log_odds), v.count});
+      visit(detail::voxel_of(b.key, i), detail::state_of(v));
     }
   });
 }

@@ -4,6 +4,7 @@
 #include "detail/absolute_log_odds.h"
 #include "detail/batch_input.h"
 #include "detail/block_grid.h"
+#include "detail/grid_reads.h"
 #include "detail/hit_accumulator.h"
 #include "detail/param_setters.h"
 #include "detail/scan_scratch.h"
@@ -189,36 +190,18 @@ void ProbabilityUpdater::set_log_odds(const Eigen::MatrixXd& points, const Eigen
 Eigen::MatrixXd ProbabilityUpdater::get_occupied_voxels(double min_probability) {
   const double threshold = detail::resolve_min_probability(min_probability);
   const Impl& m = impl();
-  std::vector<double> rows;
-  for (const auto& b : m.grid.blocks()) {
-    for (int i = 0; i < detail::kBlockVoxels; ++i) {
-      if (b->voxels[i].count == 0) continue;
-      const double p = iwlo::probability(b->voxels[i].log_odds);
-      if (!(p > threshold)) continue;
-      const Eigen::Vector3d c = key_to_center(detail::voxel_of(b->key, i), m.resolution);
-      rows.insert(rows.end(), {c.x(), c.y(), c.z(), p});
-    }
-  }
+  const std::vector<double> rows = detail::occupied_rows(m.grid, m.resolution, threshold);
   return detail::rows_to_matrix(rows);
 }
 
 std::optional<VoxelState> ProbabilityUpdater::query(const Eigen::Vector3d& point) const {
   const Impl& m = impl();
   const VoxelKey key = world_to_key_checked(point, m.resolution);
-  const detail::VoxelBlock* b = m.grid.find(detail::block_of(key));
-  if (b == nullptr) return std::nullopt;
-  const int i = detail::index_in_block(key);
-  if (b->voxels[i].count == 0) return std::nullopt;
-  return VoxelState{b->voxels[i].log_odds, iwlo::probability(b->voxels[i].log_odds), b->voxels[i].count};
+  return detail::query_voxel(m.grid, key);
 }
 
 void ProbabilityUpdater::for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const {
-  for (const auto& b : impl().grid.blocks()) {
-    for (int i = 0; i < detail::kBlockVoxels; ++i) {
-      if (b->voxels[i].count == 0) continue;
-      visit(detail::voxel_of(b->key, i), VoxelState{b->voxels[i].log_odds, iwlo::probability(b->voxels[i].log_odds), b->voxels[i].count});
-    }
-  }
+  detail::for_each_known(impl().grid, [&visit](const VoxelKey& k, const detail::Voxel& v) { visit(k, detail::state_of(v)); });
 }
 
 void ProbabilityUpdater::set_hit_accumulation(bool enabled) {
