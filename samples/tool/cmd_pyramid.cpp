@@ -5,12 +5,10 @@
 #include "args.h"
 #include "cloud_io.h"
 #include "commands.h"
+#include "map_open.h"
 
 #include <iwlomap/precomputation_stack.h>
 #include <iwlomap/probability_updater.h>
-#ifdef IWLOMAP_HAVE_OCTOMAP
-#include <iwlomap/octree_mapper.h>
-#endif
 
 #include <algorithm>
 #include <array>
@@ -50,6 +48,7 @@ INPUT is a map:
                 0.001) to keep free voxels, or with the default to keep the occupied ones only
                 (free and unknown cells both have value 0). Needs --resolution.
   .bt / .ot     an OctoMap file (needs the OctoMap layer); its resolution is used.
+  TILE_DIR      a disk-backend map directory; its resolution is used, tiles are read in turn.
 
 options:
   -o, --output DIR    output directory (created when missing)
@@ -242,17 +241,12 @@ std::unique_ptr<IMapperBackend> load_voxel_cloud(const std::string& path, double
 
 std::unique_ptr<IMapperBackend> load_map(const std::string& path, const Args& args) {
   const std::string ext = extension(path);
-  if (ext == ".bt" || ext == ".ot") {
-    if (args.has("--resolution")) throw UsageError("--resolution is for .pcd/.ply voxel clouds; an OctoMap file has its own");
-#ifdef IWLOMAP_HAVE_OCTOMAP
-    auto map = std::make_unique<OctreeMapper>();
-    map->load_from_file(path);
-    return map;
-#else
-    throw std::runtime_error("reading '" + path + "' needs the OctoMap layer (build with -DIWLOMAP_WITH_OCTOMAP=ON)");
-#endif
+  if (is_map_path(path)) {  // a tile directory or an OctoMap file, at its own resolution
+    if (args.has("--resolution")) throw UsageError("--resolution is for .pcd/.ply voxel clouds; a stored map has its own");
+    return open_map(path);
   }
-  if (ext != ".pcd" && ext != ".ply") throw UsageError("the input must be .pcd, .ply, .bt or .ot, got '" + path + "'");
+  if (ext != ".pcd" && ext != ".ply")
+    throw UsageError("the input must be .pcd, .ply, .bt, .ot or a tile directory, got '" + path + "'");
   const auto resolution = args.number("--resolution");
   if (!resolution) throw UsageError("a .pcd/.ply voxel cloud needs --resolution (the map's voxel edge)");
   if (!(*resolution > 0.0)) throw UsageError("--resolution must be > 0");

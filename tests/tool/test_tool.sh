@@ -112,6 +112,8 @@ if has_layer octomap; then
   check info_bt 0 "$TOOL" info "$WORK/exported.bt"
   expect info_bt_reports grep -q "OctoMap map, .* known voxels at 0.2 m" "$WORK/info_bt.out"
 fi
+check pyramid_tiles 0 "$TOOL" pyramid "$WORK/tiles" --levels 2 -o "$WORK/pyramid_tiles"
+expect pyramid_tiles_png test -s "$WORK/pyramid_tiles/level_1.png"
 if has_layer viewer && [ -n "${DISPLAY:-}" ]; then
   check render_tiles 0 "$TOOL" render "$WORK/tiles" -o "$WORK/tiles.png"
   expect render_tiles_png test -s "$WORK/tiles.png"
