@@ -3,25 +3,34 @@
 
 #include <sys/mman.h>
 
-#include <cstdlib>
+#include <algorithm>
 #include <new>
 
 namespace iwlomap::detail {
 
 namespace {
+
 constexpr std::size_t kFirstSlab = 64 * 1024;
-constexpr std::size_t kHugePage = 2 * 1024 * 1024;
+constexpr std::size_t kLargestSlab = 2 * 1024 * 1024;
+
+// Slabs come straight from mmap: fresh zero pages every time, and none of malloc's heuristics
+// (glibc raises its mmap threshold after large frees and then serves big blocks from a reused
+// heap, which made every map after the first one in a process markedly slower to fill).
+// Transparent huge pages were tried (madvise): they halved the cost of filling an empty map with
+// a surface batch, but with the kernel's default defrag policy a large map then stalled in page
+// compaction at random, doubling some scans; predictable times won.
+void* map_slab(std::size_t size) {
+  void* p = mmap(nullptr, size, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+  if (p == MAP_FAILED) throw std::bad_alloc();
+  return p;
+}
+
 }  // namespace
 
 VoxelBlock* BlockPool::allocate(const VoxelKey& key) {
   if (used_ + sizeof(VoxelBlock) > capacity_) {
-    const std::size_t size = slabs_.empty() ? kFirstSlab : std::min(kHugePage, slabs_.back().size * 2);
-    void* memory = std::aligned_alloc(size == kHugePage ? kHugePage : alignof(VoxelBlock), size);
-    if (memory == nullptr) throw std::bad_alloc();
-#ifdef MADV_HUGEPAGE
-    if (size == kHugePage) (void)madvise(memory, size, MADV_HUGEPAGE);  // advice only; failure is harmless
-#endif
-    slabs_.push_back({memory, size});
+    const std::size_t size = slabs_.empty() ? kFirstSlab : std::min(kLargestSlab, slabs_.back().size * 2);
+    slabs_.push_back({map_slab(size), size});
     bytes_ += size;
     used_ = 0;
     capacity_ = size;
@@ -33,7 +42,7 @@ VoxelBlock* BlockPool::allocate(const VoxelKey& key) {
 
 void BlockPool::release() noexcept {
   // VoxelBlock is trivially destructible: the slabs can go without visiting each block.
-  for (const Slab& s : slabs_) std::free(s.memory);
+  for (const Slab& s : slabs_) munmap(s.memory, s.size);
   slabs_.clear();
   used_ = capacity_ = bytes_ = 0;
 }

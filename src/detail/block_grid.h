@@ -15,6 +15,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <type_traits>
 #include <vector>
 
 namespace iwlomap::detail {
@@ -55,9 +56,10 @@ struct VoxelBlock {
 };
 
 // Blocks are carved out of slabs rather than allocated one by one: a map of millions of voxels
-// touches thousands of blocks per batch, and one allocation and one 4 KiB page per block made
-// page faults and TLB misses the largest cost of an update. Slabs grow from 64 KiB to 2 MiB; the
-// 2 MiB ones are aligned and marked for transparent huge pages where the kernel allows it.
+// allocates thousands of blocks per scan, and one heap allocation per block cost more than
+// updating it. Slabs grow from 64 KiB to 2 MiB and come from mmap (see block_grid.cpp).
+static_assert(std::is_trivially_destructible_v<VoxelBlock>, "BlockPool releases slabs without destroying blocks");
+
 class BlockPool {
  public:
   BlockPool() = default;
