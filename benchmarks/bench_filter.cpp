@@ -7,6 +7,8 @@
 // Each frame goes into a fresh map, with the same resolution and maximum range for all three.
 // usage: bench_filter [--data DIR] [--reps N] [--resolution R] [--max-range M]
 
+#include "bench_util.h"
+
 #include <iwlomap/filters/cloud_conversions.h>
 #include <iwlomap/filters/occupancy_filter.h>
 #include <iwlomap/probability_updater.h>
@@ -25,12 +27,9 @@
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-double ms_since(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
-}
+using iwlomap::bench::Clock;
+using iwlomap::bench::median;
+using iwlomap::bench::ms_since;
 
 }  // namespace
 

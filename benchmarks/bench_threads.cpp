@@ -5,6 +5,8 @@
 //      sequential mode (integration in the caller's thread) and in parallel mode (a worker).
 // usage: bench_threads [--reps N] [--resolution R] [--scans K]
 
+#include "bench_util.h"
+
 #include <iwlomap/async_mapper.h>
 #include <iwlomap/probability_updater.h>
 #include <iwlomap/synthetic_scan.h>
@@ -21,13 +23,9 @@
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-double ms_since(Clock::time_point t0) { return std::chrono::duration<double, std::milli>(Clock::now() - t0).count(); }
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
-}
+using iwlomap::bench::Clock;
+using iwlomap::bench::median;
+using iwlomap::bench::ms_since;
 
 std::vector<iwlomap::SyntheticScan> make_scans(int count) {
   std::vector<iwlomap::SyntheticScan> scans;
