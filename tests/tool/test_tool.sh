@@ -117,6 +117,8 @@ expect pyramid_tiles_png test -s "$WORK/pyramid_tiles/level_1.png"
 if has_layer viewer && [ -n "${DISPLAY:-}" ]; then
   check render_tiles 0 "$TOOL" render "$WORK/tiles" -o "$WORK/tiles.png"
   expect render_tiles_png test -s "$WORK/tiles.png"
+  expect render_leaves_no_partial test ! -e "$WORK/tiles.png.partial"
+  check render_unwritable 1 "$TOOL" render "$WORK/occupied.pcd" -o "/nonexistent-dir/x.png"
 fi
 
 # Threads and the background integration give the same map.

@@ -29,8 +29,11 @@ void write_png(const RgbImage& image, const std::string& path) {
                                 " image needs " +
                                 std::to_string(static_cast<long long>(image.width) * image.height * 3) +
                                 " bytes, the buffer has " + std::to_string(image.rgb.size()));
-  // VTK's writer reports an unwritable path as "ran out of disk space"; say what is wrong first.
-  if (std::FILE* f = std::fopen(path.c_str(), "wb")) {
+  // Written beside the target and renamed over it, so a failed write never leaves a torn picture
+  // (or truncates an older one). VTK's writer reports an unwritable path as "ran out of disk
+  // space"; say what is wrong first.
+  const std::string partial = path + ".partial";
+  if (std::FILE* f = std::fopen(partial.c_str(), "wb")) {
     std::fclose(f);
   } else {
     throw std::runtime_error("write_png: cannot write '" + path + "': " + std::strerror(errno));
@@ -48,12 +51,19 @@ void write_png(const RgbImage& image, const std::string& path) {
   vtkNew<detail::VtkErrorCollector> errors;
   vtkNew<vtkPNGWriter> writer;
   errors->watch(writer);
-  writer->SetFileName(path.c_str());
+  writer->SetFileName(partial.c_str());
   writer->SetInputData(data);
   writer->Write();
-  if (writer->GetErrorCode() != 0 || errors->failed())
+  if (writer->GetErrorCode() != 0 || errors->failed()) {
+    std::remove(partial.c_str());
     throw std::runtime_error("write_png: cannot write '" + path + "'" +
                              (errors->failed() ? ": " + errors->messages() : std::string()));
+  }
+  if (std::rename(partial.c_str(), path.c_str()) != 0) {
+    const std::string reason = std::strerror(errno);
+    std::remove(partial.c_str());
+    throw std::runtime_error("write_png: cannot write '" + path + "': " + reason);
+  }
 }
 
 }  // namespace iwlomap::viewer
