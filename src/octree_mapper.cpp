@@ -542,14 +542,10 @@ struct OctreeMapper::Impl {
   void observe(detail::VoxelBlock& b, int index, const VoxelKey& key, double intensity, bool occupied_flag,
                double weight) {
     detail::Voxel& v = b.voxels[static_cast<std::size_t>(index)];
-    const bool was_known = v.count != 0;
     const float before = v.log_odds;
-    if (!was_known) {
-      ++b.known;
-      ++known;
-    }
-    iwlo::apply_observation(v.log_odds, v.count, intensity, occupied_flag, weight, updater);
-    if (!was_known || v.log_odds != before) set_leaf(tree, key, v.log_odds);
+    const bool was_unknown = detail::observe_voxel(b, v, intensity, occupied_flag, weight, updater);
+    if (was_unknown) ++known;
+    if (was_unknown || v.log_odds != before) set_leaf(tree, key, v.log_odds);
   }
 
   // One observation of OctoMap's own model: the octree computes it, the exact state copies it.
@@ -807,13 +803,8 @@ void OctreeMapper::set_log_odds(const Eigen::MatrixXd& points, const Eigen::Vect
   detail::BlockAccessor acc(m.grid);
   for (const detail::AbsoluteLogOdds& a : values) {
     detail::VoxelBlock& b = acc.block(detail::block_of(a.key));
-    detail::Voxel& v = b.voxels[static_cast<std::size_t>(detail::index_in_block(a.key))];
-    if (v.count == 0) {
-      ++b.known;
+    if (detail::set_voxel_log_odds(b, b.voxels[static_cast<std::size_t>(detail::index_in_block(a.key))], a.log_odds))
       ++m.known;
-      v.count = 1;
-    }
-    v.log_odds = a.log_odds;
     set_leaf(m.tree, a.key, a.log_odds);
   }
   m.skipped += skip;

@@ -595,8 +595,8 @@ struct OutofcoreTileMapper::Impl {
 
   // ---- updates ----
 
-  void count_new(Tile& t, detail::VoxelBlock& b) {
-    ++b.known;
+  // Counts a voxel that became known in tile \p t (the block counted it already).
+  void count_new(Tile& t) {
     ++t.known;
     ++total_known;
   }
@@ -618,8 +618,7 @@ struct OutofcoreTileMapper::Impl {
       if (j + kAhead < n) __builtin_prefetch(targets[j + kAhead].second, 1);
       const detail::Observation& o = batch[routing.order[from + j]];
       detail::Voxel& v = *targets[j].second;
-      if (v.count == 0) count_new(t, *targets[j].first);
-      iwlo::apply_observation(v.log_odds, v.count, o.intensity, o.occupied_flag, o.weight, updater);
+      if (detail::observe_voxel(*targets[j].first, v, o.intensity, o.occupied_flag, o.weight, updater)) count_new(t);
     }
     t.dirty = true;
   }
@@ -660,8 +659,8 @@ struct OutofcoreTileMapper::Impl {
       if (i + kAhead < n) __builtin_prefetch(targets[i + kAhead].second, 1);
       const detail::Observation& o = batch[i];
       detail::Voxel& v = *targets[i].second;
-      if (v.count == 0) count_new(*slot_tile[routing.slot_of[i]], *targets[i].first);
-      iwlo::apply_observation(v.log_odds, v.count, o.intensity, o.occupied_flag, o.weight, updater);
+      if (detail::observe_voxel(*targets[i].first, v, o.intensity, o.occupied_flag, o.weight, updater))
+        count_new(*slot_tile[routing.slot_of[i]]);
     }
     for (Tile* t : slot_tile) t->dirty = true;
   }
@@ -732,9 +731,8 @@ struct OutofcoreTileMapper::Impl {
           block = tile != nullptr ? &tile->grid.get_or_create(block_key) : nullptr;
         }
         if (block == nullptr) return;
-        detail::Voxel& v = block->voxels[static_cast<std::size_t>(index)];
-        if (v.count == 0) count_new(*tile, *block);
-        iwlo::apply_observation(v.log_odds, v.count, 0.0, false, 1.0, updater);
+        if (detail::observe_voxel(*block, block->voxels[static_cast<std::size_t>(index)], 0.0, false, 1.0, updater))
+          count_new(*tile);
       };
       if (count == slots) {
         scratch.for_each_free(0, chunks, apply_free);
@@ -753,9 +751,9 @@ struct OutofcoreTileMapper::Impl {
         for (std::size_t j = routing.begin[s]; j < routing.begin[s + 1]; ++j) {
           const detail::ScanScratch::Hit& h = hits[routing.order[j]];
           detail::VoxelBlock& b = acc.block(detail::block_of(h.key));
-          detail::Voxel& v = b.voxels[static_cast<std::size_t>(detail::index_in_block(h.key))];
-          if (v.count == 0) count_new(t, b);
-          iwlo::apply_observation(v.log_odds, v.count, h.intensity, true, 1.0, updater);
+          if (detail::observe_voxel(b, b.voxels[static_cast<std::size_t>(detail::index_in_block(h.key))], h.intensity,
+                                    true, 1.0, updater))
+            count_new(t);
         }
         t.dirty = true;
       }
@@ -774,12 +772,9 @@ struct OutofcoreTileMapper::Impl {
         for (std::size_t j = routing.begin[slots[g]]; j < routing.begin[slots[g] + 1]; ++j) {
           const detail::AbsoluteLogOdds& a = values[routing.order[j]];
           detail::VoxelBlock& b = acc.block(detail::block_of(a.key));
-          detail::Voxel& v = b.voxels[static_cast<std::size_t>(detail::index_in_block(a.key))];
-          if (v.count == 0) {
-            count_new(t, b);
-            v.count = 1;
-          }
-          v.log_odds = a.log_odds;
+          if (detail::set_voxel_log_odds(b, b.voxels[static_cast<std::size_t>(detail::index_in_block(a.key))],
+                                         a.log_odds))
+            count_new(t);
         }
         t.dirty = true;
       }

@@ -19,16 +19,6 @@ namespace iwlomap {
 struct ProbabilityUpdater::Impl {
   explicit Impl(double res) : resolution(res) {}
 
-  // Applies one observation to voxel \p v of block \p b: the only place the grid changes.
-  // Returns true when the voxel was unknown before (the caller counts it).
-  static bool update_voxel(detail::VoxelBlock& b, detail::Voxel& v, double intensity, bool occupied_flag,
-                           double weight, const iwlo::Updater& updater) {
-    const bool was_unknown = v.count == 0;
-    if (was_unknown) ++b.known;
-    iwlo::apply_observation(v.log_odds, v.count, intensity, occupied_flag, weight, updater);
-    return was_unknown;
-  }
-
   void apply(detail::BlockAccessor& acc, const VoxelKey& key, double intensity, bool occupied_flag,
              double weight) {
     apply_in_block(acc.block(detail::block_of(key)), detail::index_in_block(key), intensity, occupied_flag, weight);
@@ -37,7 +27,7 @@ struct ProbabilityUpdater::Impl {
     apply_voxel(b, b.voxels[static_cast<std::size_t>(i)], intensity, occupied_flag, weight);
   }
   void apply_voxel(detail::VoxelBlock& b, detail::Voxel& v, double intensity, bool occupied_flag, double weight) {
-    if (update_voxel(b, v, intensity, occupied_flag, weight, updater)) ++known;
+    if (detail::observe_voxel(b, v, intensity, occupied_flag, weight, updater)) ++known;
   }
 
   // Two passes: first resolve every observation's voxel (allocating blocks), then update with the
@@ -133,7 +123,7 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
       for (std::size_t c = next.fetch_add(kGrain); c < chunks; c = next.fetch_add(kGrain)) {
         m.scratch.for_each_free(c, std::min(c + kGrain, chunks), [&](const VoxelKey& block_key, int index) {
           if (last == nullptr || last->key != block_key) last = m.grid.find(block_key);
-          if (Impl::update_voxel(*last, last->voxels[static_cast<std::size_t>(index)], 0.0, false, 1.0, m.updater))
+          if (detail::observe_voxel(*last, last->voxels[static_cast<std::size_t>(index)], 0.0, false, 1.0, m.updater))
             ++known;
         });
       }
@@ -176,13 +166,8 @@ void ProbabilityUpdater::set_log_odds(const Eigen::MatrixXd& points, const Eigen
   detail::BlockAccessor acc(m.grid);
   for (const detail::AbsoluteLogOdds& a : values) {
     detail::VoxelBlock& b = acc.block(detail::block_of(a.key));
-    detail::Voxel& v = b.voxels[static_cast<std::size_t>(detail::index_in_block(a.key))];
-    if (v.count == 0) {
-      ++b.known;
+    if (detail::set_voxel_log_odds(b, b.voxels[static_cast<std::size_t>(detail::index_in_block(a.key))], a.log_odds))
       ++m.known;
-      v.count = 1;
-    }
-    v.log_odds = a.log_odds;
   }
   m.skipped += skip;
 }

@@ -9,6 +9,7 @@
 // means "unknown"; every observed voxel has count >= 1.
 
 #include "detail/flat_key_map.h"
+#include "iwlomap/iwlo.h"
 #include "iwlomap/voxel_key.h"
 
 #include <array>
@@ -58,6 +59,29 @@ struct VoxelBlock {
 // Blocks are carved out of slabs rather than allocated one by one: a map of millions of voxels
 // allocates thousands of blocks per scan, and one heap allocation per block cost more than
 // updating it. Slabs grow from 64 KiB to 2 MiB and come from mmap (see block_grid.cpp).
+// The two ways a stored voxel changes, shared by every backend. Each returns true when the voxel
+// was unknown before, so the caller can count it in its own totals (the block's count is kept here).
+
+/// One IWLO observation of voxel \p v of block \p b.
+inline bool observe_voxel(VoxelBlock& b, Voxel& v, double intensity, bool occupied_flag, double weight,
+                          const iwlo::Updater& updater) {
+  const bool was_unknown = v.count == 0;
+  if (was_unknown) ++b.known;
+  iwlo::apply_observation(v.log_odds, v.count, intensity, occupied_flag, weight, updater);
+  return was_unknown;
+}
+
+/// Absolute log-odds (IMapperBackend::set_log_odds()): an unknown voxel becomes known with count 1.
+inline bool set_voxel_log_odds(VoxelBlock& b, Voxel& v, float log_odds) {
+  const bool was_unknown = v.count == 0;
+  if (was_unknown) {
+    ++b.known;
+    v.count = 1;
+  }
+  v.log_odds = log_odds;
+  return was_unknown;
+}
+
 static_assert(std::is_trivially_destructible_v<VoxelBlock>, "BlockPool releases slabs without destroying blocks");
 
 class BlockPool {
