@@ -7,6 +7,7 @@
 // Adding a backend is one more factory struct in BackendFactories: it needs kType and make(); a
 // factory is an object, created per test, so one that needs a directory (Disk) can own it.
 
+#include "backend_test_support.h"
 #include "iwlomap/mapper_backend.h"
 #include "iwlomap/outofcore_tile_mapper.h"
 #include "iwlomap/probability_updater.h"
@@ -38,6 +39,11 @@
 
 namespace iwlomap {
 namespace {
+
+using test_support::Snapshot;
+using test_support::TempDir;
+using test_support::snapshot;
+using test_support::sorted_rows;
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kInf = std::numeric_limits<double>::infinity();
@@ -122,26 +128,6 @@ class BackendContract : public ::testing::Test {
 TYPED_TEST_SUITE(BackendContract, BackendFactories, FactoryNames);
 
 // ---- comparison helpers ----
-
-using Snapshot = std::map<VoxelKey, std::pair<double, std::uint32_t>>;  // key -> (log-odds, count)
-
-Snapshot snapshot(const IMapperBackend& map) {
-  Snapshot s;
-  map.for_each_voxel([&s](const VoxelKey& k, const VoxelState& v) {
-    EXPECT_EQ(v.probability, 1.0 / (1.0 + std::exp(-v.log_odds)));
-    const bool inserted = s.emplace(k, std::make_pair(v.log_odds, v.count)).second;
-    EXPECT_TRUE(inserted) << "voxel (" << k.x << ", " << k.y << ", " << k.z << ") visited twice";
-  });
-  return s;
-}
-
-// Rows (x, y, z, p) sorted, so backends may list occupied voxels in any order.
-std::vector<std::array<double, 4>> sorted_rows(const Eigen::MatrixXd& m) {
-  std::vector<std::array<double, 4>> rows;
-  for (Eigen::Index i = 0; i < m.rows(); ++i) rows.push_back({m(i, 0), m(i, 1), m(i, 2), m(i, 3)});
-  std::sort(rows.begin(), rows.end());
-  return rows;
-}
 
 // Everything observable must be equal, bit for bit: the backends share the update math.
 void expect_same_map(IMapperBackend& got, IMapperBackend& want) {

@@ -5,6 +5,7 @@
 // restore log-odds exactly, and bad files fail with clear messages.
 // (The IWLO equivalence with the RAM backend is in test_backend_contract.)
 
+#include "backend_test_support.h"
 #include "iwlomap/octree_mapper.h"
 #include "iwlomap/probability_updater.h"
 #include "iwlomap/synthetic_scan.h"
@@ -47,38 +48,12 @@
 namespace iwlomap {
 namespace {
 
+using test_support::Snapshot;
+using test_support::TempDir;
+using test_support::snapshot;
+
 namespace fs = std::filesystem;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
-// A directory of its own per test, removed afterwards.
-class TempDir {
- public:
-  TempDir() {
-    static std::atomic<int> counter{0};
-    path_ = fs::temp_directory_path() /
-            ("iwlomap_octree_test_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  TempDir(const TempDir&) = delete;
-  TempDir& operator=(const TempDir&) = delete;
-  [[nodiscard]] std::string file(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
-};
-
-using Snapshot = std::map<VoxelKey, std::pair<double, std::uint32_t>>;
-
-Snapshot snapshot(const IMapperBackend& map) {
-  Snapshot s;
-  map.for_each_voxel([&s](const VoxelKey& k, const VoxelState& v) { s.emplace(k, std::make_pair(v.log_odds, v.count)); });
-  return s;
-}
 
 // Every voxel of an OctoMap tree (pruned leaves expanded), by iwlomap key, through OctoMap's own
 // key <-> coordinate conversion, so this oracle does not share the library's key arithmetic.
@@ -147,7 +122,7 @@ TEST(OctreeMapper, MirrorsExactLogOddsIntoOctreeWhenScansAndBatches) {
   for (Eigen::Index i = 0; i < pts.rows(); ++i) pts.row(i) << c(rng), c(rng), c(rng);
   map.batch_update_iwlo(pts, Eigen::VectorXd::Constant(3000, 180.0), std::vector<bool>(3000, true));
 
-  const std::string path = dir.file("mirror.ot");
+  const std::string path = dir.sub("mirror.ot");
   map.save_to_file(path);
   const auto tree = read_ot(path);
   ASSERT_NE(tree, nullptr);
@@ -176,8 +151,8 @@ TEST(OctreeMapper, UsesOctomapKeysOffsetByHalfRangeWhenNegativeCoordinates) {
   const Eigen::MatrixXd pts = (Eigen::MatrixXd(3, 3) << -0.05, 0.0, 0.05, 0.0, -0.25, 3276.75, -3276.75, 0.0, 0.0)
                                   .finished();
   map.set_log_odds(pts, Eigen::Vector3d(1.0, 2.0, 3.0));
-  map.save_to_file(dir.file("keys.ot"));
-  const auto tree = read_ot(dir.file("keys.ot"));
+  map.save_to_file(dir.sub("keys.ot"));
+  const auto tree = read_ot(dir.sub("keys.ot"));
   ASSERT_NE(tree, nullptr);
   const auto at = [&](double x, double y, double z) {
     const octomap::OcTreeNode* n = tree->search(x, y, z);
@@ -229,7 +204,7 @@ TEST(ExportOctomap, ThrowsOutOfRangeWithoutWritingWhenVoxelBeyondOctomapKeys) {
   ProbabilityUpdater ram(0.05);
   ram.batch_update_iwlo((Eigen::MatrixXd(1, 3) << 5000.0, 0.0, 0.0).finished(), Eigen::VectorXd::Constant(1, 200.0),
                         {true});
-  const std::string path = dir.file("far.bt");
+  const std::string path = dir.sub("far.bt");
   const std::string msg = message_of([&] { export_octomap(ram, path); });
   EXPECT_NE(msg.find("(100000, 0, 0)"), std::string::npos) << msg;
   EXPECT_THROW(export_octomap(ram, path), std::out_of_range);
@@ -241,8 +216,8 @@ TEST(ExportOctomap, ThrowsOutOfRangeWithoutWritingWhenVoxelBeyondOctomapKeys) {
 
 // Builds the same map with a plain OcTree and compares every voxel's log-odds.
 void expect_matches_plain_octree(OctreeMapper& map, const octomap::OcTree& plain, const TempDir& dir) {
-  map.save_to_file(dir.file("model.ot"));
-  const auto tree = read_ot(dir.file("model.ot"));
+  map.save_to_file(dir.sub("model.ot"));
+  const auto tree = read_ot(dir.sub("model.ot"));
   ASSERT_NE(tree, nullptr);
   const double r = map.get_resolution();
   const auto got = tree_voxels(*tree, r);
@@ -361,8 +336,8 @@ TEST(OctreeMapper, KeepsExactStateAndShrinksTreeWhenPruned) {
   EXPECT_EQ(map.get_num_nodes(), 65u);
   // Updating a voxel of the folded cube expands it again; the octree still mirrors the map.
   map.batch_update_iwlo(cube.topRows(1), Eigen::VectorXd::Constant(1, 250.0), {true});
-  map.save_to_file(dir.file("pruned.ot"));
-  const auto tree = read_ot(dir.file("pruned.ot"));
+  map.save_to_file(dir.sub("pruned.ot"));
+  const auto tree = read_ot(dir.sub("pruned.ot"));
   ASSERT_NE(tree, nullptr);
   const auto voxels = tree_voxels(*tree, r);
   ASSERT_EQ(voxels.size(), 65u);
@@ -426,7 +401,7 @@ TEST(OctoMapFiles, RestoresEveryLogOddsWhenRamMapExportedToOtAndImported) {
   for (Eigen::Index i = 0; i < pts.rows(); ++i) pts.row(i) << c(rng), c(rng), c(rng);
   ram.batch_update_iwlo(pts, Eigen::VectorXd::LinSpaced(5000, 0.0, 255.0), std::vector<bool>(5000, true),
                         Eigen::VectorXd::LinSpaced(5000, 0.0, 1.5));
-  const std::string path = dir.file("map.ot");
+  const std::string path = dir.sub("map.ot");
   export_octomap(ram, path);
   ProbabilityUpdater copy(r);
   import_octomap(path, copy);
@@ -453,12 +428,12 @@ TEST(OctoMapFiles, ExpandsPrunedNodesWhenImported) {
   for (int i = 0; i < 512; ++i)
     cube.row(i) = key_to_center(VoxelKey{-8 + i % 8, (i / 8) % 8, -8 + i / 64}, r).transpose();
   ram.set_log_odds(cube, Eigen::VectorXd::Constant(512, -3.25));
-  export_octomap(ram, dir.file("cube.ot"));
-  const auto tree = read_ot(dir.file("cube.ot"));
+  export_octomap(ram, dir.sub("cube.ot"));
+  const auto tree = read_ot(dir.sub("cube.ot"));
   ASSERT_NE(tree, nullptr);
   EXPECT_EQ(tree->getNumLeafNodes(), 1u);
   ProbabilityUpdater copy(r);
-  import_octomap(dir.file("cube.ot"), copy);
+  import_octomap(dir.sub("cube.ot"), copy);
   EXPECT_EQ(snapshot(copy).size(), 512u);
   for (const auto& [k, v] : snapshot(ram)) EXPECT_EQ(copy.query(key_to_center(k, r))->log_odds, -3.25);
 }
@@ -469,7 +444,7 @@ TEST(OctoMapFiles, ReadsSameOccupiedSetWhenBtReadBinary) {
   ProbabilityUpdater ram(r);
   fill_with_scans(ram);
   ram.set_occupied_threshold(0.8);
-  const std::string path = dir.file("map.bt");
+  const std::string path = dir.sub("map.bt");
   export_octomap(ram, path);
 
   octomap::OcTree tree(0.1);
@@ -508,27 +483,27 @@ TEST(OctoMapFiles, RoundTripsWhenOctreeMapperSavesAndLoads) {
   TempDir dir;
   OctreeMapper map(0.25);
   fill_with_scans(map, 2);
-  map.save_to_file(dir.file("a.ot"));
-  map.save_to_file(dir.file("a.bt"));
+  map.save_to_file(dir.sub("a.ot"));
+  map.save_to_file(dir.sub("a.bt"));
   OctreeMapper loaded(1.0);
-  loaded.load_from_file(dir.file("a.ot"));
+  loaded.load_from_file(dir.sub("a.ot"));
   EXPECT_EQ(loaded.get_resolution(), 0.25);
   const Snapshot want = snapshot(map), got = snapshot(loaded);
   ASSERT_EQ(got.size(), want.size());
   for (const auto& [k, v] : want) EXPECT_EQ(got.at(k).first, v.first);
   // The .bt and the .ot of one map hold the same voxels.
   OctreeMapper binary(1.0);
-  binary.load_from_file(dir.file("a.bt"));
+  binary.load_from_file(dir.sub("a.bt"));
   EXPECT_EQ(binary.get_num_nodes(), map.get_num_nodes());
   // An empty map is a valid (empty) file in both formats.
   OctreeMapper empty(0.25);
-  empty.save_to_file(dir.file("empty.ot"));
-  empty.save_to_file(dir.file("empty.bt"));
-  loaded.load_from_file(dir.file("empty.ot"));
+  empty.save_to_file(dir.sub("empty.ot"));
+  empty.save_to_file(dir.sub("empty.bt"));
+  loaded.load_from_file(dir.sub("empty.ot"));
   EXPECT_EQ(loaded.get_num_nodes(), 0u);
-  loaded.load_from_file(dir.file("empty.bt"));
+  loaded.load_from_file(dir.sub("empty.bt"));
   EXPECT_EQ(loaded.get_num_nodes(), 0u);
-  EXPECT_FALSE(fs::exists(dir.file("a.ot.part")));
+  EXPECT_FALSE(fs::exists(dir.sub("a.ot.part")));
 }
 
 TEST(OctoMapFiles, PrintsNothingWhenWritingAndReading) {
@@ -537,15 +512,15 @@ TEST(OctoMapFiles, PrintsNothingWhenWritingAndReading) {
   fill_with_scans(map, 1);
   testing::internal::CaptureStdout();
   testing::internal::CaptureStderr();
-  map.save_to_file(dir.file("q.ot"));
-  map.save_to_file(dir.file("q.bt"));
-  export_octomap(map, dir.file("e.bt"));
+  map.save_to_file(dir.sub("q.ot"));
+  map.save_to_file(dir.sub("q.bt"));
+  export_octomap(map, dir.sub("e.bt"));
   OctreeMapper other(0.25);
-  other.load_from_file(dir.file("q.ot"));
-  other.load_from_file(dir.file("q.bt"));
+  other.load_from_file(dir.sub("q.ot"));
+  other.load_from_file(dir.sub("q.bt"));
   ProbabilityUpdater ram(0.25);
-  import_octomap(dir.file("e.bt"), ram);
-  (void)message_of([&] { import_octomap(dir.file("missing.ot"), ram); });
+  import_octomap(dir.sub("e.bt"), ram);
+  (void)message_of([&] { import_octomap(dir.sub("missing.ot"), ram); });
   const std::string out = testing::internal::GetCapturedStdout();
   const std::string err = testing::internal::GetCapturedStderr();
   EXPECT_EQ(out, "");
@@ -559,8 +534,8 @@ TEST(OctoMapFiles, ThrowsNamingPathAndKeepsMapWhenFileBad) {
   const double r = 0.25;
   OctreeMapper good(r);
   fill_with_scans(good, 1);
-  good.save_to_file(dir.file("good.ot"));
-  good.save_to_file(dir.file("good.bt"));
+  good.save_to_file(dir.sub("good.ot"));
+  good.save_to_file(dir.sub("good.bt"));
   const auto bytes = [](const std::string& p) {
     std::ifstream in(p, std::ios::binary);
     return std::string(std::istreambuf_iterator<char>(in), {});
@@ -568,36 +543,36 @@ TEST(OctoMapFiles, ThrowsNamingPathAndKeepsMapWhenFileBad) {
   const auto write = [](const std::string& p, const std::string& content) {
     std::ofstream(p, std::ios::binary) << content;
   };
-  const std::string ot = bytes(dir.file("good.ot")), bt = bytes(dir.file("good.bt"));
+  const std::string ot = bytes(dir.sub("good.ot")), bt = bytes(dir.sub("good.bt"));
   std::mt19937 rng(1u);
   std::string garbage(4096, '\0');
   for (char& ch : garbage) ch = static_cast<char>(rng() & 0xFF);
-  write(dir.file("garbage.bt"), garbage);
-  write(dir.file("garbage.ot"), garbage);
-  write(dir.file("empty.bt"), "");
-  write(dir.file("truncated.ot"), ot.substr(0, ot.size() * 2 / 3));
-  write(dir.file("truncated.bt"), bt.substr(0, bt.size() / 2));
-  write(dir.file("swapped.bt"), ot);
-  write(dir.file("swapped.ot"), bt);
-  write(dir.file("no_data.ot"), "# Octomap OcTree file\nid OcTree\nsize 3\nres 0.25\n");
-  write(dir.file("bad_res.bt"), "# Octomap OcTree binary file\nid OcTree\nsize 1\nres -1\ndata\n\x01\x00");
-  write(dir.file("color.ot"), "# Octomap OcTree file\nid ColorOcTree\nsize 1\nres 0.25\ndata\n");
+  write(dir.sub("garbage.bt"), garbage);
+  write(dir.sub("garbage.ot"), garbage);
+  write(dir.sub("empty.bt"), "");
+  write(dir.sub("truncated.ot"), ot.substr(0, ot.size() * 2 / 3));
+  write(dir.sub("truncated.bt"), bt.substr(0, bt.size() / 2));
+  write(dir.sub("swapped.bt"), ot);
+  write(dir.sub("swapped.ot"), bt);
+  write(dir.sub("no_data.ot"), "# Octomap OcTree file\nid OcTree\nsize 3\nres 0.25\n");
+  write(dir.sub("bad_res.bt"), "# Octomap OcTree binary file\nid OcTree\nsize 1\nres -1\ndata\n\x01\x00");
+  write(dir.sub("color.ot"), "# Octomap OcTree file\nid ColorOcTree\nsize 1\nres 0.25\ndata\n");
   // A valid header over data that claims more levels than an octree has.
   std::string deep = "# Octomap OcTree binary file\nid OcTree\nsize 18\nres 0.25\ndata\n";
   for (int i = 0; i < 17; ++i) deep += std::string("\x03\x00", 2);
-  write(dir.file("deep.bt"), deep);
+  write(dir.sub("deep.bt"), deep);
   // The announced node count disagrees with the data.
   std::string miscount = bt;
   const std::size_t size_at = miscount.find("size ") + 5, size_end = miscount.find('\n', size_at);
   miscount.replace(size_at, size_end - size_at, std::to_string(std::stoull(miscount.substr(size_at)) + 1));
-  write(dir.file("miscount.bt"), miscount);
+  write(dir.sub("miscount.bt"), miscount);
   // A NaN log-odds in an .ot node.
   std::string nan_ot = "# Octomap OcTree file\nid OcTree\nsize 1\nres 0.25\ndata\n";
   const float nan_value = std::numeric_limits<float>::quiet_NaN();
   nan_ot.append(reinterpret_cast<const char*>(&nan_value), sizeof(float));
   nan_ot.push_back('\0');
-  write(dir.file("nan.ot"), nan_ot);
-  fs::create_directories(dir.file("folder.ot"));
+  write(dir.sub("nan.ot"), nan_ot);
+  fs::create_directories(dir.sub("folder.ot"));
 
   struct Case {
     std::string file;
@@ -605,27 +580,27 @@ TEST(OctoMapFiles, ThrowsNamingPathAndKeepsMapWhenFileBad) {
     bool invalid_argument;
   };
   const std::vector<Case> cases = {
-      {dir.file("missing.bt"), "does not exist", false},
-      {dir.file("missing.ot"), "does not exist", false},
-      {dir.file("good.txt"), "extension '.txt'", true},
-      {dir.file("noextension"), "extension ''", true},
-      {dir.file("folder.ot"), "is a directory", false},
-      {dir.file("garbage.bt"), "first line", false},
-      {dir.file("garbage.ot"), "first line", false},
-      {dir.file("empty.bt"), "first line", false},
-      {dir.file("truncated.ot"), "ends early", false},
-      {dir.file("truncated.bt"), "ends early", false},
-      {dir.file("swapped.bt"), "other OctoMap format", false},
-      {dir.file("swapped.ot"), "other OctoMap format", false},
-      {dir.file("no_data.ot"), "no 'data' line", false},
-      {dir.file("bad_res.bt"), "'res'", false},
-      {dir.file("color.ot"), "'ColorOcTree'", false},
-      {dir.file("deep.bt"), "deepest level", false},
-      {dir.file("miscount.bt"), "nodes", false},
-      {dir.file("nan.ot"), "non-finite", false},
+      {dir.sub("missing.bt"), "does not exist", false},
+      {dir.sub("missing.ot"), "does not exist", false},
+      {dir.sub("good.txt"), "extension '.txt'", true},
+      {dir.sub("noextension"), "extension ''", true},
+      {dir.sub("folder.ot"), "is a directory", false},
+      {dir.sub("garbage.bt"), "first line", false},
+      {dir.sub("garbage.ot"), "first line", false},
+      {dir.sub("empty.bt"), "first line", false},
+      {dir.sub("truncated.ot"), "ends early", false},
+      {dir.sub("truncated.bt"), "ends early", false},
+      {dir.sub("swapped.bt"), "other OctoMap format", false},
+      {dir.sub("swapped.ot"), "other OctoMap format", false},
+      {dir.sub("no_data.ot"), "no 'data' line", false},
+      {dir.sub("bad_res.bt"), "'res'", false},
+      {dir.sub("color.ot"), "'ColorOcTree'", false},
+      {dir.sub("deep.bt"), "deepest level", false},
+      {dir.sub("miscount.bt"), "nodes", false},
+      {dir.sub("nan.ot"), "non-finite", false},
   };
-  fs::copy_file(dir.file("good.ot"), dir.file("good.txt"));
-  write(dir.file("noextension"), ot);
+  fs::copy_file(dir.sub("good.ot"), dir.sub("good.txt"));
+  write(dir.sub("noextension"), ot);
 
   ProbabilityUpdater ram(r);
   ram.set_log_odds((Eigen::MatrixXd(1, 3) << 0.1, 0.1, 0.1).finished(), Eigen::VectorXd::Constant(1, 1.5));
@@ -656,15 +631,15 @@ TEST(OctoMapFiles, ThrowsNamingPathAndKeepsMapWhenFileBad) {
 
   // A resolution mismatch on import is an invalid argument naming both values.
   ProbabilityUpdater coarse(0.5);
-  const std::string msg = message_of([&] { import_octomap(dir.file("good.ot"), coarse); });
+  const std::string msg = message_of([&] { import_octomap(dir.sub("good.ot"), coarse); });
   EXPECT_NE(msg.find("0.25"), std::string::npos) << msg;
   EXPECT_NE(msg.find("0.5"), std::string::npos) << msg;
-  EXPECT_THROW(import_octomap(dir.file("good.ot"), coarse), std::invalid_argument);
+  EXPECT_THROW(import_octomap(dir.sub("good.ot"), coarse), std::invalid_argument);
   EXPECT_EQ(coarse.get_num_nodes(), 0u);
   // Writing: a bad extension, and a directory that does not exist.
-  EXPECT_THROW(export_octomap(ram, dir.file("map.ply")), std::invalid_argument);
-  EXPECT_THROW(octree.save_to_file(dir.file("map.BTX")), std::invalid_argument);
-  const std::string nowhere = dir.file("no/such/dir/map.bt");
+  EXPECT_THROW(export_octomap(ram, dir.sub("map.ply")), std::invalid_argument);
+  EXPECT_THROW(octree.save_to_file(dir.sub("map.BTX")), std::invalid_argument);
+  const std::string nowhere = dir.sub("no/such/dir/map.bt");
   const std::string wmsg = message_of([&] { export_octomap(ram, nowhere); });
   EXPECT_NE(wmsg.find("'" + nowhere + "'"), std::string::npos) << wmsg;
   EXPECT_THROW(export_octomap(ram, nowhere), std::runtime_error);
@@ -698,11 +673,11 @@ TEST(OctoMapFiles, ThrowsLogicErrorWhenImportTargetCannotSetLogOdds) {
   TempDir dir;
   OctreeMapper map(0.25);
   map.update_point(Eigen::Vector3d(0.1, 0.1, 0.1), true);
-  map.save_to_file(dir.file("one.ot"));
+  map.save_to_file(dir.sub("one.ot"));
   NoSet target;
-  const std::string msg = message_of([&] { import_octomap(dir.file("one.ot"), target); });
+  const std::string msg = message_of([&] { import_octomap(dir.sub("one.ot"), target); });
   EXPECT_NE(msg.find("Test backend does not implement set_log_odds"), std::string::npos) << msg;
-  EXPECT_THROW(import_octomap(dir.file("one.ot"), target), std::logic_error);
+  EXPECT_THROW(import_octomap(dir.sub("one.ot"), target), std::logic_error);
 }
 
 // ---- Debian's octomap-tools --------------------------------------------------------------------
@@ -764,11 +739,11 @@ TEST(OctoMapTools, ReportNoDifferenceWhenExportedBtConvertedAndComparedWithRefer
   const double r = 0.2;
   ProbabilityUpdater ram(r);
   fill_with_scans(ram);
-  const std::string exported = dir.file("exported.bt");
+  const std::string exported = dir.sub("exported.bt");
   export_octomap(ram, exported);
 
   // convert_octree reads the .bt as OctoMap does and writes it as .ot.
-  const std::string converted = dir.file("converted.ot");
+  const std::string converted = dir.sub("converted.ot");
   const ToolRun conv = run_tool(quoted(convert) + " " + quoted(exported) + " " + quoted(converted));
   ASSERT_EQ(conv.exit_code, 0) << conv.output;
   ASSERT_TRUE(fs::exists(converted)) << conv.output;
@@ -786,7 +761,7 @@ TEST(OctoMapTools, ReportNoDifferenceWhenExportedBtConvertedAndComparedWithRefer
                            occ ? reference.getClampingThresMaxLog() : reference.getClampingThresMinLog());
   });
   reference.updateInnerOccupancy();
-  const std::string reference_ot = dir.file("reference.ot");  // compare_octrees needs .ot
+  const std::string reference_ot = dir.sub("reference.ot");  // compare_octrees needs .ot
   ASSERT_TRUE(reference.write(reference_ot));
   EXPECT_GT(occupied, 100u);
 
@@ -804,7 +779,7 @@ TEST(OctoMapTools, ReportNoDifferenceWhenExportedBtConvertedAndComparedWithRefer
   ASSERT_NE(n, nullptr);
   reference.setNodeValue(flip, -n->getLogOdds());
   reference.updateInnerOccupancy();
-  const std::string flipped = dir.file("flipped.ot");
+  const std::string flipped = dir.sub("flipped.ot");
   ASSERT_TRUE(reference.write(flipped));
   const Comparison c = compare(compare_tool, converted, flipped);
   EXPECT_FALSE(c.same) << c.output;

@@ -4,6 +4,7 @@
 // another process wrote the map; its crash safety under SIGKILL; and its storage error contract:
 // damaged files, newer formats, failed writes, locking and clear().
 
+#include "backend_test_support.h"
 #include "iwlomap/outofcore_tile_mapper.h"
 #include "iwlomap/probability_updater.h"
 #include "iwlomap/synthetic_scan.h"
@@ -47,49 +48,15 @@
 namespace iwlomap {
 namespace {
 
+using test_support::Snapshot;
+using test_support::TempDir;
+using test_support::snapshot;
+using test_support::sorted_rows;
+
 namespace fs = std::filesystem;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 // ---- fixtures and helpers ----
-
-// A fresh directory under the system's temporary directory, removed with everything in it.
-class TempDir {
- public:
-  TempDir() {
-    std::string tmpl = (fs::temp_directory_path() / "iwlomap_disk_test_XXXXXX").string();
-    if (::mkdtemp(tmpl.data()) == nullptr) throw std::runtime_error("mkdtemp failed for " + tmpl);
-    path_ = tmpl;
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  TempDir(const TempDir&) = delete;
-  TempDir& operator=(const TempDir&) = delete;
-  [[nodiscard]] std::string sub(const std::string& name) const { return (fs::path(path_) / name).string(); }
-
- private:
-  std::string path_;
-};
-
-using Snapshot = std::map<VoxelKey, std::pair<double, std::uint32_t>>;  // key -> (log-odds, count)
-
-Snapshot snapshot(const IMapperBackend& map) {
-  Snapshot s;
-  map.for_each_voxel([&s](const VoxelKey& k, const VoxelState& v) {
-    EXPECT_EQ(v.probability, 1.0 / (1.0 + std::exp(-v.log_odds)));
-    const bool inserted = s.emplace(k, std::make_pair(v.log_odds, v.count)).second;
-    EXPECT_TRUE(inserted) << "voxel (" << k.x << ", " << k.y << ", " << k.z << ") visited twice";
-  });
-  return s;
-}
-
-std::vector<std::array<double, 4>> sorted_rows(const Eigen::MatrixXd& m) {
-  std::vector<std::array<double, 4>> rows;
-  for (Eigen::Index i = 0; i < m.rows(); ++i) rows.push_back({m(i, 0), m(i, 1), m(i, 2), m(i, 3)});
-  std::sort(rows.begin(), rows.end());
-  return rows;
-}
 
 // Per-voxel log-odds and counts, occupied voxels and point queries: all exactly equal.
 void expect_same_map(IMapperBackend& got, IMapperBackend& want) {
