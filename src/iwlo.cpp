@@ -2,6 +2,7 @@
 #include "iwlomap/iwlo.h"
 
 #include "detail/batch_input.h"
+#include "detail/updater_kernel.h"
 
 #include <algorithm>
 #include <cmath>
@@ -122,21 +123,7 @@ Updater::Updater(const IwloParams& params) : p_(params) {
 
 double Updater::step(double log_odds_value, std::uint32_t count, double intensity, bool occupied_flag,
                      double weight) const {
-  const bool occupied = is_occupied_observation(occupied_flag, intensity, p_);
-  const bool unit_scale = occupied ? log_odds_value >= occupied_fast_from_ : log_odds_value <= free_fast_to_;
-  const double s = unit_scale ? 1.0 : adaptive_scale(probability(log_odds_value), occupied, p_);
-  const std::size_t n = count == 0 ? 1 : count;
-  const double alpha = n <= alpha_.size() ? alpha_[n - 1]
-                       : (alpha_.back() == p_.min_alpha ? p_.min_alpha : learning_rate(count, p_));
-  double d;
-  if (occupied) {
-    const bool tabled = intensity >= 0.0 && intensity < 256.0 && intensity == std::floor(intensity);
-    const double w = tabled ? integer_weight_[static_cast<std::size_t>(intensity)] : intensity_weight(intensity, p_);
-    d = p_.log_odds_occupied * w * alpha * s;
-  } else {
-    d = p_.log_odds_free * alpha * s;
-  }
-  return std::clamp(log_odds_value + d * weight, p_.L_min, p_.L_max);
+  return detail::UpdaterKernel::step(*this, log_odds_value, count, intensity, occupied_flag, weight);
 }
 
 }  // namespace iwlo

@@ -541,7 +541,7 @@ struct OctreeMapper::Impl {
   // when the value changed or the voxel is new.
   void observe(detail::VoxelBlock& b, int index, const VoxelKey& key, double intensity, bool occupied_flag,
                double weight) {
-    detail::Voxel& v = b.voxels[static_cast<std::size_t>(index)];
+    detail::Voxel& v = grid.voxel(b, index);
     const float before = v.log_odds;
     const bool was_unknown = detail::observe_voxel(b, v, intensity, occupied_flag, weight, updater);
     if (was_unknown) ++known;
@@ -551,10 +551,10 @@ struct OctreeMapper::Impl {
   // One observation of OctoMap's own model: the octree computes it, the exact state copies it.
   void observe_octomap(detail::BlockAccessor& acc, const VoxelKey& key, bool occupied) {
     const octomap::OcTreeNode* node = tree.updateNode(to_octomap(key), occupied, /*lazy_eval=*/true);
-    detail::VoxelBlock& b = acc.block(detail::block_of(key));
-    detail::Voxel& v = b.voxels[static_cast<std::size_t>(detail::index_in_block(key))];
+    detail::VoxelBlock* b = nullptr;
+    detail::Voxel& v = acc.voxel(key, b);
     if (v.count == 0) {
-      ++b.known;
+      ++b->known;
       ++known;
     }
     v.count = static_cast<std::uint16_t>(iwlo::increment_count(v.count));
@@ -566,10 +566,11 @@ struct OctreeMapper::Impl {
     const std::size_t skip = detail::prepare_batch(points, intensities, is_occupied, weights, resolution, batch);
     for (const detail::Observation& o : batch)
       if (!in_octomap_range(o.key)) throw_outside_octomap(describe_row_in(points, o.key, resolution), o.key, resolution);
+    const detail::BatchValues in{intensities, is_occupied, weights};
     detail::BlockAccessor acc(grid);
     for (const detail::Observation& o : batch)
-      observe(acc.block(detail::block_of(o.key)), detail::index_in_block(o.key), o.key, o.intensity,
-              o.occupied_flag, o.weight);
+      observe(acc.block(detail::block_of(o.key)), detail::index_in_block(o.key), o.key, in.intensity(o.row),
+              in.occupied_flag(o.row), in.weight(o.row));
     skipped += skip;
     if (!batch.empty()) tree_changed();
   }
@@ -802,9 +803,9 @@ void OctreeMapper::set_log_odds(const Eigen::MatrixXd& points, const Eigen::Vect
     if (!in_octomap_range(a.key)) throw_outside_octomap(describe_row_in(points, a.key, m.resolution), a.key, m.resolution);
   detail::BlockAccessor acc(m.grid);
   for (const detail::AbsoluteLogOdds& a : values) {
-    detail::VoxelBlock& b = acc.block(detail::block_of(a.key));
-    if (detail::set_voxel_log_odds(b, b.voxels[static_cast<std::size_t>(detail::index_in_block(a.key))], a.log_odds))
-      ++m.known;
+    detail::VoxelBlock* b = nullptr;
+    detail::Voxel& v = acc.voxel(a.key, b);
+    if (detail::set_voxel_log_odds(*b, v, a.log_odds)) ++m.known;
     set_leaf(m.tree, a.key, a.log_odds);
   }
   m.skipped += skip;
@@ -864,7 +865,7 @@ MemoryStats OctreeMapper::get_memory_usage() const {
   }
   const std::size_t bytes = sizeof(Impl) + tree_bytes + m.grid.bytes() + m.scratch.bytes() +
                             m.batch.capacity() * sizeof(detail::Observation);
-  const std::size_t slots = m.grid.num_blocks() * detail::kBlockVoxels;
+  const std::size_t slots = m.grid.num_slots();
   return MemoryStats{nodes, leaves, static_cast<double>(bytes) / (1024.0 * 1024.0),
                      slots == 0 ? 0.0 : static_cast<double>(m.known) / static_cast<double>(slots)};
 }

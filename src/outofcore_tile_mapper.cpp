@@ -378,12 +378,9 @@ struct OutofcoreTileMapper::Impl {
     const detail::TileHeader h =
         detail::parse_tile_header(bytes.data(), bytes.size(), bytes.size(), resolution, tile_voxels, key, path);
     auto tile = std::make_unique<Tile>(key);
-    auto scratch = std::make_unique<detail::VoxelBlock>(VoxelKey{});
-    detail::decode_tile(bytes, h, tile_voxels, path, *scratch, [&](const detail::VoxelBlock& b) {
-      detail::VoxelBlock& dst = tile->grid.get_or_create(b.key);
-      dst.voxels = b.voxels;
-      dst.known = b.known;
-    });
+    auto scratch = std::make_unique<detail::DenseBlock>();
+    detail::decode_tile(bytes, h, tile_voxels, path, *scratch,
+                        [&](const detail::DenseBlock& b) { tile->grid.add_dense(b); });
     tile->known = static_cast<std::size_t>(h.known_voxels);
     return tile;
   }
@@ -601,24 +598,32 @@ struct OutofcoreTileMapper::Impl {
     ++total_known;
   }
 
+  // Resolves the voxel of an observation for the update pass: its block and cell are allocated
+  // now, its address is taken only in the update pass (adding a cell moves the block's cells).
+  static std::pair<detail::VoxelBlock*, int> resolve(detail::BlockAccessor& acc, detail::BlockGrid& grid,
+                                                     const VoxelKey& key) {
+    detail::VoxelBlock& b = acc.block(detail::block_of(key));
+    const int index = detail::index_in_block(key);
+    grid.ensure_cells(b, std::uint64_t{1} << (index >> 3));
+    return {&b, index};
+  }
+  detail::Voxel& target_voxel(std::size_t i) { return targets[i].first->existing(targets[i].second); }
+
   // The observations order[from, to) of the batch, all in tile \p t, in order. Two passes as in
-  // the RAM backend: resolve every voxel (allocating blocks), then update with the voxel of a
-  // later observation prefetched.
-  void apply_observations(Tile& t, std::size_t from, std::size_t to) {
+  // the RAM backend: resolve every voxel (allocating blocks and cells), then update with the voxel
+  // of a later observation prefetched.
+  void apply_observations(const detail::BatchValues& in, Tile& t, std::size_t from, std::size_t to) {
     detail::BlockAccessor acc(t.grid);
     targets.resize(to - from);
-    for (std::size_t j = from; j < to; ++j) {
-      const detail::Observation& o = batch[routing.order[j]];
-      detail::VoxelBlock& b = acc.block(detail::block_of(o.key));
-      targets[j - from] = {&b, &b.voxels[static_cast<std::size_t>(detail::index_in_block(o.key))]};
-    }
+    for (std::size_t j = from; j < to; ++j) targets[j - from] = resolve(acc, t.grid, batch[routing.order[j]].key);
     constexpr std::size_t kAhead = 16;
     const std::size_t n = to - from;
     for (std::size_t j = 0; j < n; ++j) {
-      if (j + kAhead < n) __builtin_prefetch(targets[j + kAhead].second, 1);
+      if (j + kAhead < n) __builtin_prefetch(&target_voxel(j + kAhead), 1);
       const detail::Observation& o = batch[routing.order[from + j]];
-      detail::Voxel& v = *targets[j].second;
-      if (detail::observe_voxel(*targets[j].first, v, o.intensity, o.occupied_flag, o.weight, updater)) count_new(t);
+      if (detail::observe_voxel(*targets[j].first, target_voxel(j), in.intensity(o.row), in.occupied_flag(o.row), in.weight(o.row),
+                                updater))
+        count_new(t);
     }
     t.dirty = true;
   }
@@ -626,14 +631,15 @@ struct OutofcoreTileMapper::Impl {
   void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                    const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights) {
     const std::size_t skip = detail::prepare_batch(points, intensities, is_occupied, weights, resolution, batch);
+    const detail::BatchValues in{intensities, is_occupied, weights};
     assign_slots(batch.size(), [&](std::size_t i) { return batch[i].key; });
     if (routing.slot_tiles.size() <= cache_tiles) {
-      apply_in_call_order();
+      apply_in_call_order(in);
     } else {
       sort_by_slot(batch.size());
       for_each_group([&](const std::uint32_t* slots, Tile* const* group, std::size_t count) {
         for (std::size_t g = 0; g < count; ++g)
-          apply_observations(*group[g], routing.begin[slots[g]], routing.begin[slots[g] + 1]);
+          apply_observations(in, *group[g], routing.begin[slots[g]], routing.begin[slots[g] + 1]);
       });
     }
     skipped += skip;
@@ -642,24 +648,21 @@ struct OutofcoreTileMapper::Impl {
   // The common case: every tile of the batch fits in the cache at once. They are loaded first
   // (so an I/O error changes nothing), then the batch is applied in call order exactly as the RAM
   // backend does, without sorting it by tile.
-  void apply_in_call_order() {
+  void apply_in_call_order(const detail::BatchValues& in) {
     PinScope pins(*this);
     make_resident(routing.slot_tiles, slot_tile);
     accessors.clear();
     for (Tile* t : slot_tile) accessors.emplace_back(t->grid);
     const std::size_t n = batch.size();
     targets.resize(n);
-    for (std::size_t i = 0; i < n; ++i) {
-      const detail::Observation& o = batch[i];
-      detail::VoxelBlock& b = accessors[routing.slot_of[i]].block(detail::block_of(o.key));
-      targets[i] = {&b, &b.voxels[static_cast<std::size_t>(detail::index_in_block(o.key))]};
-    }
+    for (std::size_t i = 0; i < n; ++i)
+      targets[i] = resolve(accessors[routing.slot_of[i]], slot_tile[routing.slot_of[i]]->grid, batch[i].key);
     constexpr std::size_t kAhead = 16;
     for (std::size_t i = 0; i < n; ++i) {
-      if (i + kAhead < n) __builtin_prefetch(targets[i + kAhead].second, 1);
+      if (i + kAhead < n) __builtin_prefetch(&target_voxel(i + kAhead), 1);
       const detail::Observation& o = batch[i];
-      detail::Voxel& v = *targets[i].second;
-      if (detail::observe_voxel(*targets[i].first, v, o.intensity, o.occupied_flag, o.weight, updater))
+      if (detail::observe_voxel(*targets[i].first, target_voxel(i), in.intensity(o.row), in.occupied_flag(o.row), in.weight(o.row),
+                                updater))
         count_new(*slot_tile[routing.slot_of[i]]);
     }
     for (Tile* t : slot_tile) t->dirty = true;
@@ -731,7 +734,7 @@ struct OutofcoreTileMapper::Impl {
           block = tile != nullptr ? &tile->grid.get_or_create(block_key) : nullptr;
         }
         if (block == nullptr) return;
-        if (detail::observe_voxel(*block, block->voxels[static_cast<std::size_t>(index)], 0.0, false, 1.0, updater))
+        if (detail::observe_voxel(*block, tile->grid.voxel(*block, index), 0.0, false, 1.0, updater))
           count_new(*tile);
       };
       if (count == slots) {
@@ -750,9 +753,9 @@ struct OutofcoreTileMapper::Impl {
         const std::uint32_t s = group_slots[g];
         for (std::size_t j = routing.begin[s]; j < routing.begin[s + 1]; ++j) {
           const detail::ScanScratch::Hit& h = hits[routing.order[j]];
-          detail::VoxelBlock& b = acc.block(detail::block_of(h.key));
-          if (detail::observe_voxel(b, b.voxels[static_cast<std::size_t>(detail::index_in_block(h.key))], h.intensity,
-                                    true, 1.0, updater))
+          detail::VoxelBlock* b = nullptr;
+          detail::Voxel& v = acc.voxel(h.key, b);
+          if (detail::observe_voxel(*b, v, h.intensity, true, 1.0, updater))
             count_new(t);
         }
         t.dirty = true;
@@ -771,9 +774,9 @@ struct OutofcoreTileMapper::Impl {
         detail::BlockAccessor acc(t.grid);
         for (std::size_t j = routing.begin[slots[g]]; j < routing.begin[slots[g] + 1]; ++j) {
           const detail::AbsoluteLogOdds& a = values[routing.order[j]];
-          detail::VoxelBlock& b = acc.block(detail::block_of(a.key));
-          if (detail::set_voxel_log_odds(b, b.voxels[static_cast<std::size_t>(detail::index_in_block(a.key))],
-                                         a.log_odds))
+          detail::VoxelBlock* b = nullptr;
+          detail::Voxel& v = acc.voxel(a.key, b);
+          if (detail::set_voxel_log_odds(*b, v, a.log_odds))
             count_new(t);
         }
         t.dirty = true;
@@ -784,20 +787,19 @@ struct OutofcoreTileMapper::Impl {
 
   // ---- reading the whole map ----
 
-  // Calls fn(const VoxelBlock&) for every block of every tile, tiles in key order: resident ones
-  // from RAM, the others read one at a time and dropped (the cache is left as it is).
+  // Calls fn(key, const Voxel&) for every known voxel of every tile, tiles in key order: resident
+  // ones from RAM, the others read one at a time and dropped (the cache is left as it is).
   template <class Fn>
-  void for_each_block(Fn&& fn) {
+  void for_each_known(Fn&& fn) {
     std::vector<VoxelKey> keys;
     keys.reserve(tiles.size());
     for (const auto& [k, info] : tiles) keys.push_back(k);
     std::sort(keys.begin(), keys.end());
-    std::unique_ptr<detail::VoxelBlock> scratch_block;
+    std::unique_ptr<detail::DenseBlock> scratch_block;
     for (const VoxelKey& k : keys) {
       const TileInfo& info = tiles.at(k);
       if (info.resident != nullptr) {
-        for (const auto& b : info.resident->grid.blocks())
-          if (b->known > 0) fn(static_cast<const detail::VoxelBlock&>(*b));
+        detail::for_each_known(info.resident->grid, fn);
         continue;
       }
       std::vector<std::uint8_t> bytes;
@@ -807,8 +809,13 @@ struct OutofcoreTileMapper::Impl {
       if (h.known_voxels != info.file_known)
         detail::throw_corrupt(path, "it holds " + std::to_string(h.known_voxels) + " voxels, " +
                                         std::to_string(info.file_known) + " when last written or read (changed by another program?)");
-      if (!scratch_block) scratch_block = std::make_unique<detail::VoxelBlock>(VoxelKey{});
-      detail::decode_tile(bytes, h, tile_voxels, path, *scratch_block, fn);
+      if (!scratch_block) scratch_block = std::make_unique<detail::DenseBlock>();
+      detail::decode_tile(bytes, h, tile_voxels, path, *scratch_block, [&fn](const detail::DenseBlock& b) {
+        for (int i = 0; i < detail::kBlockVoxels; ++i) {
+          const detail::Voxel& v = b.voxels[static_cast<std::size_t>(i)];
+          if (v.count != 0) fn(detail::voxel_of(b.key, i), v);
+        }
+      });
     }
   }
 
@@ -826,11 +833,11 @@ struct OutofcoreTileMapper::Impl {
       if (info.staged || (info.resident != nullptr && info.resident->dirty)) keys.push_back(k);
     std::sort(keys.begin(), keys.end());
     std::vector<std::uint8_t> staged_image;
-    std::unique_ptr<detail::VoxelBlock> check_block_owner;
-    if (!keys.empty()) check_block_owner = std::make_unique<detail::VoxelBlock>(VoxelKey{});
-    detail::VoxelBlock* const check_block_ptr = check_block_owner.get();
+    std::unique_ptr<detail::DenseBlock> check_block_owner;
+    if (!keys.empty()) check_block_owner = std::make_unique<detail::DenseBlock>();
+    detail::DenseBlock* const check_block_ptr = check_block_owner.get();
     for (const VoxelKey& k : keys) {
-      detail::VoxelBlock& check_block = *check_block_ptr;
+      detail::DenseBlock& check_block = *check_block_ptr;
       TileInfo& info = tiles.at(k);
       try {
         Tile* t = info.resident;
@@ -842,7 +849,7 @@ struct OutofcoreTileMapper::Impl {
           const std::string where = read_image(k, info, staged_image);
           const detail::TileHeader h = detail::parse_tile_header(staged_image.data(), staged_image.size(),
                                                                  staged_image.size(), resolution, tile_voxels, k, where);
-          detail::decode_tile(staged_image, h, tile_voxels, where, check_block, [](const detail::VoxelBlock&) {});
+          detail::decode_tile(staged_image, h, tile_voxels, where, check_block, [](const detail::DenseBlock&) {});
           io_buffer.swap(staged_image);
         }
         const std::string path = tile_path(k);
@@ -948,7 +955,7 @@ struct OutofcoreTileMapper::Impl {
   // Buffers reused between calls.
   detail::ScanScratch scratch;
   std::vector<detail::Observation> batch;
-  std::vector<std::pair<detail::VoxelBlock*, detail::Voxel*>> targets;
+  std::vector<std::pair<detail::VoxelBlock*, int>> targets;  // block and index_in_block
   Routing routing;
   std::vector<std::vector<std::size_t>> slot_chunks;
   std::vector<std::size_t> slot_last_chunk;
@@ -1055,15 +1062,11 @@ Eigen::MatrixXd OutofcoreTileMapper::get_occupied_voxels(double min_probability)
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
   std::vector<double> rows;
-  m.for_each_block([&](const detail::VoxelBlock& b) {
-    for (int i = 0; i < detail::kBlockVoxels; ++i) {
-      const detail::Voxel& v = b.voxels[static_cast<std::size_t>(i)];
-      if (v.count == 0) continue;
-      const double p = iwlo::probability(v.log_odds);
-      if (!(p > threshold)) continue;
-      const Eigen::Vector3d c = key_to_center(detail::voxel_of(b.key, i), m.resolution);
-      rows.insert(rows.end(), {c.x(), c.y(), c.z(), p});
-    }
+  m.for_each_known([&](const VoxelKey& key, const detail::Voxel& v) {
+    const double p = iwlo::probability(v.log_odds);
+    if (!(p > threshold)) return;
+    const Eigen::Vector3d c = key_to_center(key, m.resolution);
+    rows.insert(rows.end(), {c.x(), c.y(), c.z(), p});
   });
   return detail::rows_to_matrix(rows);
 }
@@ -1094,13 +1097,7 @@ void OutofcoreTileMapper::for_each_voxel(const std::function<void(const VoxelKey
   (void)impl();
   Impl& m = *impl_;
   std::lock_guard<std::mutex> lock(m.mutex);
-  m.for_each_block([&](const detail::VoxelBlock& b) {
-    for (int i = 0; i < detail::kBlockVoxels; ++i) {
-      const detail::Voxel& v = b.voxels[static_cast<std::size_t>(i)];
-      if (v.count == 0) continue;
-      visit(detail::voxel_of(b.key, i), detail::state_of(v));
-    }
-  });
+  m.for_each_known([&](const VoxelKey& key, const detail::Voxel& v) { visit(key, detail::state_of(v)); });
 }
 
 MemoryStats OutofcoreTileMapper::get_memory_usage() const {
@@ -1115,7 +1112,7 @@ MemoryStats OutofcoreTileMapper::get_memory_usage() const {
   std::size_t slots = 0, resident_known = 0;
   for (const auto& t : m.resident) {
     bytes += sizeof(Tile) + t->grid.bytes();
-    slots += t->grid.num_blocks() * detail::kBlockVoxels;
+    slots += t->grid.num_slots();
     resident_known += t->known;
   }
   return MemoryStats{m.total_known, m.total_known, static_cast<double>(bytes) / (1024.0 * 1024.0),
@@ -1190,8 +1187,6 @@ size_t OutofcoreTileMapper::prune() {
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
   m.scratch.release();
-  m.batch = {};
-  m.targets = {};
   m.routing = Routing{};
   m.slot_chunks = {};
   m.slot_last_chunk = {};

@@ -10,6 +10,7 @@
 #include "detail/scan_scratch.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <stdexcept>
 #include <thread>
@@ -19,33 +20,53 @@ namespace iwlomap {
 struct ProbabilityUpdater::Impl {
   explicit Impl(double res) : resolution(res) {}
 
-  void apply(detail::BlockAccessor& acc, const VoxelKey& key, double intensity, bool occupied_flag,
-             double weight) {
-    apply_in_block(acc.block(detail::block_of(key)), detail::index_in_block(key), intensity, occupied_flag, weight);
-  }
-  void apply_in_block(detail::VoxelBlock& b, int i, double intensity, bool occupied_flag, double weight) {
-    apply_voxel(b, b.voxels[static_cast<std::size_t>(i)], intensity, occupied_flag, weight);
+  void apply(detail::BlockAccessor& acc, const VoxelKey& key, double intensity, bool occupied_flag, double weight) {
+    detail::VoxelBlock* b = nullptr;
+    detail::Voxel& v = acc.voxel(key, b);
+    apply_voxel(*b, v, intensity, occupied_flag, weight);
   }
   void apply_voxel(detail::VoxelBlock& b, detail::Voxel& v, double intensity, bool occupied_flag, double weight) {
     if (detail::observe_voxel(b, v, intensity, occupied_flag, weight, updater)) ++known;
   }
 
-  // Two passes: first resolve every observation's voxel (allocating blocks), then update with the
-  // voxel of a later observation prefetched, which hides most cache misses on large maps.
+  // The batch is validated first (nothing changes when it throws), then applied in chunks of
+  // rows, each in two passes: resolve every row's voxel (allocating blocks and cells), then update
+  // with the voxel of a later row prefetched, which hides most cache misses on large maps. Voxel
+  // addresses are taken only in the second pass (adding a cell moves its block's cells). A chunk's
+  // targets stay in L1; converting whole batches first cost a write and a read of 32 bytes a row.
   void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                    const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights) {
-    const std::size_t skip = detail::prepare_batch(points, intensities, is_occupied, weights, resolution, batch);
+    const std::size_t skip = detail::validate_batch(points, intensities, is_occupied, weights, resolution);
+    const detail::BatchValues in{intensities, is_occupied, weights};
+    const detail::FloorDivider divide(resolution);
     detail::BlockAccessor acc(grid);
-    targets.resize(batch.size());
-    for (std::size_t i = 0; i < batch.size(); ++i) {
-      detail::VoxelBlock& b = acc.block(detail::block_of(batch[i].key));
-      targets[i] = {&b, &b.voxels[static_cast<std::size_t>(detail::index_in_block(batch[i].key))]};
-    }
-    constexpr std::size_t kAhead = 16;
-    for (std::size_t i = 0; i < batch.size(); ++i) {
-      if (i + kAhead < batch.size()) __builtin_prefetch(targets[i + kAhead].second, 1);
-      const detail::Observation& o = batch[i];
-      apply_voxel(*targets[i].first, *targets[i].second, o.intensity, o.occupied_flag, o.weight);
+    const Eigen::Index n = points.rows();
+    for (Eigen::Index begin = 0; begin < n; begin += kChunkRows) {
+      const Eigen::Index end = std::min<Eigen::Index>(n, begin + kChunkRows);
+      std::size_t count = 0;
+      const auto rows = static_cast<std::size_t>(end - begin);
+      for (int c = 0; c < 3; ++c)
+        divide.floor_many(points.col(c).data() + begin, rows, keys[static_cast<std::size_t>(c)].data(), flags.data());
+      const auto key_at = [this](std::size_t r) {
+        return VoxelKey{static_cast<std::int32_t>(keys[0][r]), static_cast<std::int32_t>(keys[1][r]),
+                        static_cast<std::int32_t>(keys[2][r])};
+      };
+      for (Eigen::Index i = begin; i < end; ++i) {
+        const auto r = static_cast<std::size_t>(i - begin);
+        if (!detail::row_is_finite(points, intensities, i)) continue;
+        const VoxelKey key = key_at(r);
+        detail::VoxelBlock& b = acc.block(detail::block_of(key));
+        const int index = detail::index_in_block(key);
+        grid.ensure_cells(b, std::uint64_t{1} << (index >> 3));
+        chunk[count++] = {&b, nullptr, index, static_cast<std::uint32_t>(i)};
+      }
+      for (std::size_t j = 0; j < count; ++j) chunk[j].voxel = &chunk[j].block->existing(chunk[j].index);
+      constexpr std::size_t kAhead = 16;
+      for (std::size_t j = 0; j < count; ++j) {
+        if (j + kAhead < count) __builtin_prefetch(chunk[j + kAhead].voxel, 1);
+        const Target& t = chunk[j];
+        apply_voxel(*t.block, *t.voxel, in.intensity(t.row), in.occupied_flag(t.row), in.weight(t.row));
+      }
     }
     skipped += skip;
   }
@@ -56,8 +77,16 @@ struct ProbabilityUpdater::Impl {
   iwlo::Updater updater;
   detail::BlockGrid grid;
   detail::ScanScratch scratch;
-  std::vector<detail::Observation> batch;  // reused between batches
-  std::vector<std::pair<detail::VoxelBlock*, detail::Voxel*>> targets;  // reused between batches
+  struct Target {
+    detail::VoxelBlock* block;
+    detail::Voxel* voxel;  // set once the chunk's cells are all allocated
+    int index;             // index_in_block()
+    std::uint32_t row;  // in the batch
+  };
+  static constexpr Eigen::Index kChunkRows = 512;
+  std::array<Target, kChunkRows> chunk;  // one chunk of a batch, resolved
+  std::array<std::array<std::int64_t, kChunkRows>, 3> keys;  // x, y, z keys of the chunk's rows (low 32 bits)
+  std::array<std::int64_t, kChunkRows> flags;                // scratch of FloorDivider::floor_many()
   std::size_t known = 0;
   std::size_t skipped = 0;
   std::unique_ptr<detail::HitAccumulator> hits;  // null while hit accumulation is off
@@ -105,10 +134,12 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
   const auto t = static_cast<std::size_t>(std::min<std::size_t>(static_cast<std::size_t>(threads), chunks / 4 + 1));
   // Blocks are allocated first, on one thread and in scratch order whatever the thread count, so
   // that the map's iteration order does not depend on it either.
-  m.scratch.for_each_block([&](const VoxelKey& block_key) { (void)acc.block(block_key); });
+  m.scratch.for_each_block(
+      [&](const VoxelKey& block_key, std::uint64_t cells) { m.grid.ensure_cells(acc.block(block_key), cells); });
   if (t <= 1) {
     m.scratch.for_each_free(0, chunks, [&](const VoxelKey& block_key, int index) {
-      m.apply_in_block(acc.block(block_key), index, 0.0, false, 1.0);
+      detail::VoxelBlock& b = acc.block(block_key);
+      m.apply_voxel(b, b.existing(index), 0.0, false, 1.0);
     });
   } else {
     // Each thread updates the free voxels of its own range of scratch chunks. Chunks are disjoint,
@@ -123,7 +154,7 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
       for (std::size_t c = next.fetch_add(kGrain); c < chunks; c = next.fetch_add(kGrain)) {
         m.scratch.for_each_free(c, std::min(c + kGrain, chunks), [&](const VoxelKey& block_key, int index) {
           if (last == nullptr || last->key != block_key) last = m.grid.find(block_key);
-          if (detail::observe_voxel(*last, last->voxels[static_cast<std::size_t>(index)], 0.0, false, 1.0, m.updater))
+          if (detail::observe_voxel(*last, last->existing(index), 0.0, false, 1.0, m.updater))
             ++known;
         });
       }
@@ -165,9 +196,9 @@ void ProbabilityUpdater::set_log_odds(const Eigen::MatrixXd& points, const Eigen
   const std::size_t skip = detail::prepare_log_odds(points, log_odds, m.updater.params(), m.resolution, values);
   detail::BlockAccessor acc(m.grid);
   for (const detail::AbsoluteLogOdds& a : values) {
-    detail::VoxelBlock& b = acc.block(detail::block_of(a.key));
-    if (detail::set_voxel_log_odds(b, b.voxels[static_cast<std::size_t>(detail::index_in_block(a.key))], a.log_odds))
-      ++m.known;
+    detail::VoxelBlock* b = nullptr;
+    detail::Voxel& v = acc.voxel(a.key, b);
+    if (detail::set_voxel_log_odds(*b, v, a.log_odds)) ++m.known;
   }
   m.skipped += skip;
 }
@@ -217,26 +248,20 @@ Eigen::MatrixXd ProbabilityUpdater::get_occupied_mean_positions(double min_proba
         "iwlomap: get_occupied_mean_positions() needs hit accumulation, which is off (set_hit_accumulation(true))");
   // The same walk as get_occupied_voxels(), so the rows come in the same order.
   std::vector<double> rows;
-  for (const auto& b : m.grid.blocks()) {
-    for (int i = 0; i < detail::kBlockVoxels; ++i) {
-      if (b->voxels[i].count == 0) continue;
-      const double p = iwlo::probability(b->voxels[i].log_odds);
-      if (!(p > threshold)) continue;
-      const VoxelKey key = detail::voxel_of(b->key, i);
-      const detail::HitCell* c = m.hits->find(key);
-      const Eigen::Vector3d x = c != nullptr ? m.hits->mean_position(key, *c) : key_to_center(key, m.resolution);
-      rows.insert(rows.end(), {x.x(), x.y(), x.z(), p});
-    }
-  }
+  detail::for_each_known(m.grid, [&](const VoxelKey& key, const detail::Voxel& v) {
+    const double p = iwlo::probability(v.log_odds);
+    if (!(p > threshold)) return;
+    const detail::HitCell* c = m.hits->find(key);
+    const Eigen::Vector3d x = c != nullptr ? m.hits->mean_position(key, *c) : key_to_center(key, m.resolution);
+    rows.insert(rows.end(), {x.x(), x.y(), x.z(), p});
+  });
   return detail::rows_to_matrix(rows);
 }
 
 MemoryStats ProbabilityUpdater::get_memory_usage() const {
   const Impl& m = impl();
-  const std::size_t bytes = sizeof(Impl) + m.grid.bytes() + m.scratch.bytes() +
-                            m.batch.capacity() * sizeof(detail::Observation) + m.targets.capacity() * sizeof(m.targets[0]) +
-                            (m.hits ? m.hits->bytes() : 0);
-  const std::size_t slots = m.grid.num_blocks() * detail::kBlockVoxels;
+  const std::size_t bytes = sizeof(Impl) + m.grid.bytes() + m.scratch.bytes() + (m.hits ? m.hits->bytes() : 0);
+  const std::size_t slots = m.grid.num_slots();
   return MemoryStats{m.known, m.known, static_cast<double>(bytes) / (1024.0 * 1024.0),
                      slots == 0 ? 0.0 : static_cast<double>(m.known) / static_cast<double>(slots)};
 }
@@ -249,8 +274,6 @@ void ProbabilityUpdater::clear() {
   Impl& m = impl();
   m.grid.clear();
   m.scratch.release();
-  m.batch = {};
-  m.targets = {};
   m.known = 0;
   m.skipped = 0;
   if (m.hits) m.hits->clear();
@@ -259,8 +282,6 @@ void ProbabilityUpdater::clear() {
 size_t ProbabilityUpdater::prune() {
   Impl& m = impl();
   m.scratch.release();
-  m.batch = {};
-  m.targets = {};
   return m.grid.prune();
 }
 

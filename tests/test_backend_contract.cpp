@@ -410,6 +410,31 @@ TYPED_TEST(BackendContract, KeepsAllVoxelsWhenPruned) {
   expect_same_map(*map, *ref);
 }
 
+// Points on voxel faces, a rounding error to either side of them, and in between: every
+// backend puts each one in the voxel of world_to_key(), i.e. floor(x / r) with a division.
+TYPED_TEST(BackendContract, PutsPointsInVoxelOfWorldToKeyWhenOnOrNearVoxelFaces) {
+  for (const double r : {0.1, 0.05, 0.3, 1.0, 0.07}) {
+    std::vector<double> coords;
+    for (int k = -300; k <= 300; ++k) {
+      const double face = k * r;
+      coords.insert(coords.end(), {face, std::nextafter(face, -1e9), std::nextafter(face, 1e9), face + 1e-12,
+                                   face - 1e-12, (k + 0.5) * r, k / (1.0 / r)});
+    }
+    const auto n = static_cast<Eigen::Index>(coords.size());
+    Eigen::MatrixXd pts(n, 3);
+    for (Eigen::Index i = 0; i < n; ++i)  // each coordinate on every axis, in different rows
+      pts.row(i) << coords[static_cast<std::size_t>(i)], coords[static_cast<std::size_t>((i * 7 + 3) % n)],
+          coords[static_cast<std::size_t>((i * 13 + 5) % n)];
+    std::map<VoxelKey, std::uint32_t> expected;
+    for (Eigen::Index i = 0; i < n; ++i) ++expected[world_to_key(pts.row(i).transpose(), r)];
+    auto map = this->make(r);
+    map->batch_update_iwlo(pts, Eigen::VectorXd::Constant(n, 200.0), std::vector<bool>(static_cast<std::size_t>(n), true));
+    std::map<VoxelKey, std::uint32_t> got;
+    for (const auto& [k, v] : snapshot(*map)) got[k] = v.second;
+    EXPECT_EQ(got, expected) << "resolution " << r;
+  }
+}
+
 TYPED_TEST(BackendContract, DoesNothingWhenBatchEmpty) {
   auto map = this->make(0.25);
   map->batch_update_iwlo(Eigen::MatrixXd(0, 3), Eigen::VectorXd(0), {});

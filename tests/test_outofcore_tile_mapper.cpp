@@ -737,6 +737,41 @@ TEST(OutofcoreTileMapper, StagesEvictedTilesAndCommitsThemOnlyAtFlush) {
   EXPECT_EQ(tile_files(dir).size(), 2u);
 }
 
+// The record layout is part of the file format (src/detail/tile_file.h), whatever the in-memory
+// layout of a block: a mask bit x + 8 y + 64 z inside the block, the voxels in that order.
+TEST(OutofcoreTileMapper, WritesBlockRecordsInTheDocumentedVoxelOrder) {
+  const TempDir tmp;
+  const std::string dir = tmp.sub("map");
+  {
+    OutofcoreTileMapper map(dir, 1.0, 8.0, 4);  // one 8^3 block per tile
+    // Voxels (1, 2, 3) twice and (7, 0, 5) once, given in the opposite order of the file.
+    const Eigen::MatrixXd pts = (Eigen::MatrixXd(3, 3) << 7.5, 0.5, 5.5, 1.5, 2.5, 3.5, 1.5, 2.5, 3.5).finished();
+    map.batch_update_iwlo(pts, Eigen::VectorXd::Constant(3, 200.0), {true, true, true});
+    map.flush();
+  }
+  const std::vector<std::uint8_t> f = read_bytes((fs::path(dir) / "tile_0_0_0.iwt").string());
+  const auto u32 = [&f](std::size_t at) {
+    return static_cast<std::uint32_t>(f[at]) | static_cast<std::uint32_t>(f[at + 1]) << 8 |
+           static_cast<std::uint32_t>(f[at + 2]) << 16 | static_cast<std::uint32_t>(f[at + 3]) << 24;
+  };
+  const auto u64 = [&u32](std::size_t at) { return static_cast<std::uint64_t>(u32(at)) | static_cast<std::uint64_t>(u32(at + 4)) << 32; };
+  const std::size_t rec = 80;  // header bytes
+  ASSERT_EQ(f.size(), rec + 12 + 4 + 64 + 2 * 6);
+  EXPECT_EQ(u32(rec), 0u);       // block (0, 0, 0)
+  EXPECT_EQ(u32(rec + 12), 2u);  // known voxels
+  const std::size_t a = 1 + 8 * 2 + 64 * 3, b = 7 + 8 * 0 + 64 * 5;  // 209, 327
+  for (std::size_t w = 0; w < 8; ++w) {
+    std::uint64_t want = 0;
+    if (a / 64 == w) want |= std::uint64_t{1} << (a % 64);
+    if (b / 64 == w) want |= std::uint64_t{1} << (b % 64);
+    EXPECT_EQ(u64(rec + 16 + 8 * w), want) << "mask word " << w;
+  }
+  const auto u16 = [&f](std::size_t at) { return static_cast<unsigned>(f[at]) | static_cast<unsigned>(f[at + 1]) << 8; };
+  const std::size_t v = rec + 80;  // voxels: f32 log-odds, u16 count
+  EXPECT_EQ(u16(v + 4), 2u);       // (1, 2, 3): seen twice
+  EXPECT_EQ(u16(v + 6 + 4), 1u);   // (7, 0, 5): once
+}
+
 // Tiles evicted again and again leave dead images in the staging file; it is rewritten with the
 // live ones when it is mostly dead, and the map stays equal to the RAM map throughout.
 TEST(OutofcoreTileMapper, CompactsStagingFileWhenTilesEvictedRepeatedly) {

@@ -645,8 +645,8 @@ TEST(ProbabilityUpdater, ReportsMemoryWhenBlocksAllocated) {
   const MemoryStats one = map.get_memory_usage();
   EXPECT_EQ(one.num_nodes, 64u);
   EXPECT_EQ(one.num_leaf_nodes, 64u);
-  // One block: efficiency = 64 / 512 = 0.125.
-  EXPECT_DOUBLE_EQ(one.memory_efficiency, 64.0 / 512.0);
+  // One block, its 8 cells of 2^3 voxels (keys 0..3) all full: efficiency = 64 / 64.
+  EXPECT_DOUBLE_EQ(one.memory_efficiency, 1.0);
   EXPECT_GT(one.memory_mb, empty.memory_mb);
 
   // 64 more points, each in its own new block (keys multiples of 8 away).
@@ -656,12 +656,68 @@ TEST(ProbabilityUpdater, ReportsMemoryWhenBlocksAllocated) {
   const MemoryStats many = map.get_memory_usage();
   EXPECT_EQ(many.num_nodes, 128u);
   EXPECT_EQ(many.num_leaf_nodes, map.get_num_nodes());
-  // 65 blocks: efficiency = 128 / (65 * 512).
-  EXPECT_DOUBLE_EQ(many.memory_efficiency, 128.0 / (65.0 * 512.0));
+  // 8 full cells and 64 cells of one known voxel each: efficiency = 128 / (72 * 8).
+  EXPECT_DOUBLE_EQ(many.memory_efficiency, 128.0 / (72.0 * 8.0));
   EXPECT_GT(many.memory_efficiency, 0.0);
   EXPECT_LE(many.memory_efficiency, 1.0);
-  // 64 new blocks of 512 voxels at >= 6 bytes each (same batch size, so scratch is unchanged).
-  EXPECT_GE(many.memory_mb - one.memory_mb, 64.0 * 512 * 6 / (1024.0 * 1024.0));
+  // At least the 65 block headers (32 bytes) and 72 cells of 8 voxels at 8 bytes are held; the
+  // block index grew with the 64 new blocks.
+  EXPECT_GE(many.memory_mb, (65.0 * 32 + 72.0 * 8 * 8) / (1024.0 * 1024.0));
+  EXPECT_GT(many.memory_mb, one.memory_mb);
+}
+
+// Keys at the ends of the int32 range and at a resolution whose inverse is not a normal number
+// take the exact division path of the key computation; they must agree with world_to_key().
+TEST(ProbabilityUpdater, PutsPointsInVoxelOfWorldToKeyAtKeyRangeEndsAndExtremeResolutions) {
+  const double lo = -2147483648.0, hi = 2147483647.0;
+  for (const double r : {0.05, 1e-310, 1e290}) {
+    const std::vector<double> keys = {lo, lo + 0.5, lo + 1.0, hi, hi + 0.5, hi - 1.0, -0.5, 0.0, 0.25, 3.0, -7.75};
+    Eigen::MatrixXd pts(static_cast<Eigen::Index>(keys.size()), 3);
+    std::map<VoxelKey, std::uint32_t> expected;
+    for (std::size_t i = 0; i < keys.size(); ++i) {
+      const auto row = static_cast<Eigen::Index>(i);
+      pts.row(row) << keys[i] * r, keys[(i + 3) % keys.size()] * r, keys[(i + 5) % keys.size()] * r;
+      ASSERT_TRUE(is_representable(pts.row(row).transpose(), r)) << "row " << i;
+      ++expected[world_to_key(pts.row(row).transpose(), r)];
+    }
+    ProbabilityUpdater map(r);
+    map.batch_update_iwlo(pts, Eigen::VectorXd::Constant(pts.rows(), 200.0), std::vector<bool>(keys.size(), true));
+    std::map<VoxelKey, std::uint32_t> got;
+    for (const auto& [k, v] : snapshot(map)) got[k] = v.second;
+    EXPECT_EQ(got, expected) << "resolution " << r;
+  }
+}
+
+// Maps reuse the memory of destroyed maps (see block_grid.cpp): nothing of an old map may show.
+TEST(ProbabilityUpdater, StartsEmptyWhenMemoryOfDestroyedMapsIsReused) {
+  std::mt19937 rng(11u);
+  std::uniform_real_distribution<double> pos(-20.0, 20.0);
+  Eigen::MatrixXd big(200000, 3);
+  for (Eigen::Index i = 0; i < big.rows(); ++i) big.row(i) << pos(rng), pos(rng), pos(rng);
+  for (int round = 0; round < 3; ++round) {
+    {
+      ProbabilityUpdater old(0.1);
+      old.batch_update_iwlo(big, Eigen::VectorXd::Constant(big.rows(), 250.0), std::vector<bool>(200000, true));
+      ASSERT_GT(old.get_num_nodes(), 190000u);
+    }
+    ProbabilityUpdater fresh(0.1);
+    EXPECT_EQ(fresh.get_num_nodes(), 0u);
+    fresh.batch_update_iwlo(big.topRows(100), Eigen::VectorXd::Constant(100, 10.0), std::vector<bool>(100, false));
+    const Snapshot s = snapshot(fresh);
+    EXPECT_EQ(s.size(), fresh.get_num_nodes());
+    std::map<VoxelKey, std::uint32_t> expected;
+    for (Eigen::Index i = 0; i < 100; ++i) ++expected[world_to_key(big.row(i).transpose(), 0.1)];
+    ASSERT_EQ(s.size(), expected.size());
+    for (const auto& [k, v] : s) {
+      EXPECT_EQ(v.second, expected.at(k));
+      // Free observations only: L = L_free * alpha summed over this voxel's own observations.
+      double l = 0.0;
+      for (std::uint32_t n = 1; n <= v.second; ++n)
+        l = static_cast<float>(iwlo::step(l, n, 10.0, false, 1.0, IwloParams{}));
+      EXPECT_EQ(v.first, l);
+    }
+    EXPECT_EQ(fresh.get_occupied_voxels(0.5).rows(), 0);  // every known voxel is free
+  }
 }
 
 TEST(ProbabilityUpdater, KeepsAllVoxelsWhenPruned) {

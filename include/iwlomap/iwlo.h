@@ -15,6 +15,10 @@
 
 namespace iwlomap {
 
+namespace detail {
+struct UpdaterKernel;
+}
+
 /// All parameters of the IWLO update, with the defaults of the reference API.
 /// Intensities are in the sensor's raw units (e.g. 0..255 echo amplitude); log-odds are natural
 /// logarithms of p / (1 - p).
@@ -93,6 +97,7 @@ class Updater {
                             double weight) const;
 
  private:
+  friend struct detail::UpdaterKernel;  // the backends' inlined copy of step()
   IwloParams p_;
   std::vector<double> alpha_;                  // alpha_[n - 1] for counts below the floor
   std::array<double, 256> integer_weight_{};   // intensity_weight(I) for I = 0..255

@@ -10,10 +10,13 @@
 
 namespace iwlomap {
 
-/// The in-memory backend. Voxels live in dense 8x8x8 blocks that are allocated the first time one
-/// of their voxels is observed and found through a hash map keyed by block coordinate; a voxel
-/// costs 6 bytes inside its block (float log-odds, uint16 observation count). Keys are int32, so a
-/// map at 0.05 m spans +-107,000 km.
+/// The in-memory backend. Voxels live in 8x8x8 blocks found through a hash map keyed by block
+/// coordinate; inside a block they are stored in 2x2x2 cells of 64 bytes, allocated the first time
+/// one of their voxels is observed, so a surface costs about what it covers and free space fills
+/// whole blocks. A voxel costs 8 bytes (float log-odds, uint16 observation count, 2 spare), a block
+/// a 32-byte header. Keys are int32, so a map at 0.05 m spans +-107,000 km. The memory of
+/// destroyed maps (up to 64 MiB in all) is kept for the next map of the process, which then
+/// skips the kernel's first-touch cost.
 ///
 /// Not thread-safe: one thread at a time may call a mutating method; const methods may run
 /// concurrently with each other. Non-copyable, movable; a moved-from object throws
@@ -58,8 +61,9 @@ class ProbabilityUpdater final : public IMapperBackend {
   [[nodiscard]] std::optional<HitStatistics> hit_statistics(const Eigen::Vector3d& point) const override;
   [[nodiscard]] Eigen::MatrixXd get_occupied_mean_positions(double min_probability = 0.5) override;
 
-  /// memory_mb counts every byte the map holds: blocks, block table, hash index and the scratch
-  /// buffers kept between scans. memory_efficiency = known voxels / allocated voxel slots.
+  /// memory_mb counts every byte the map holds: the slabs its block headers and cells are carved
+  /// from, block table, hash index and the scratch buffers kept between scans.
+  /// memory_efficiency = known voxels / allocated voxel slots (8 per allocated cell).
   [[nodiscard]] MemoryStats get_memory_usage() const override;
   [[nodiscard]] double get_resolution() const override;
   [[nodiscard]] size_t get_num_nodes() const override;
@@ -67,10 +71,10 @@ class ProbabilityUpdater final : public IMapperBackend {
   void clear() override;
   [[nodiscard]] std::string get_backend_type() const override { return "RAM"; }
 
-  /// Frees blocks that hold no known voxel, returns the scratch buffers and shrinks the block
-  /// index to fit. Returns the number of voxel slots freed (each an unknown voxel; known voxels
-  /// are never removed). Updates only allocate blocks they write, so the count is usually 0 and
-  /// the gain is the memory given back.
+  /// Frees blocks and cells that hold no known voxel, compacts the rest into fresh memory, returns
+  /// the scratch buffers and shrinks the block index to fit. Returns the number of voxel slots
+  /// freed (each an unknown voxel; known voxels are never removed). Updates only allocate cells
+  /// they write, so the count is usually 0 and the gain is the memory given back.
   size_t prune() override;
 
  private:

@@ -4,7 +4,11 @@
 #include <sys/mman.h>
 
 #include <algorithm>
+#include <cstring>
+#include <mutex>
 #include <new>
+#include <utility>
+#include <vector>
 
 namespace iwlomap::detail {
 
@@ -13,38 +17,207 @@ namespace {
 constexpr std::size_t kFirstSlab = 64 * 1024;
 constexpr std::size_t kLargestSlab = 2 * 1024 * 1024;
 
-// Slabs come straight from mmap: fresh zero pages every time, and none of malloc's heuristics
-// (glibc raises its mmap threshold after large frees and then serves big blocks from a reused
-// heap, which made every map after the first one in a process markedly slower to fill).
-// Transparent huge pages were tried (madvise): they halved the cost of filling an empty map with
-// a surface batch, but with the kernel's default defrag policy a large map then stalled in page
-// compaction at random, doubling some scans; predictable times won.
+// Slabs come from mmap, not malloc: glibc raises its mmap threshold after large frees and then
+// serves big blocks from a reused heap, which made every map after the first one in a process
+// markedly slower to fill. Transparent huge pages were tried (madvise): they halved the cost of
+// filling an empty map with a surface batch, but with the kernel's default defrag policy a large
+// map then stalled in page compaction at random, doubling some scans; predictable times won.
+//
+// Slabs of destroyed maps are kept for the next map of the process, up to kCachedBytes in all:
+// on this project's machines the kernel's first touch of a page (fault, zeroing, accounting)
+// costs about 3 us, which made filling an empty map with a scan's points mostly page faults.
+// Programs that build a map per frame or per region (the PCL filter does) pay it once. Users of
+// a slab never rely on its contents.
+constexpr std::size_t kCachedBytes = 64 * 1024 * 1024;
+
+class SlabCache {
+ public:
+  void* take(std::size_t size) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (std::size_t i = 0; i < slabs_.size(); ++i) {
+      if (slabs_[i].second != size) continue;
+      void* p = slabs_[i].first;
+      slabs_[i] = slabs_.back();
+      slabs_.pop_back();
+      bytes_ -= size;
+      return p;
+    }
+    return nullptr;
+  }
+  bool give(void* p, std::size_t size) noexcept {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (bytes_ + size > kCachedBytes || slabs_.size() == slabs_.capacity()) return false;
+    slabs_.emplace_back(p, size);  // no allocation: capacity reserved up front
+    bytes_ += size;
+    return true;
+  }
+
+  SlabCache() { slabs_.reserve(kCachedBytes / kFirstSlab); }
+
+ private:
+  std::mutex mutex_;
+  std::vector<std::pair<void*, std::size_t>> slabs_;
+  std::size_t bytes_ = 0;
+};
+
+SlabCache& slab_cache() {
+  static SlabCache* cache = new SlabCache;  // never destroyed: maps may outlive static destructors
+  return *cache;
+}
+
 void* map_slab(std::size_t size) {
+  if (void* p = slab_cache().take(size)) return p;
   void* p = mmap(nullptr, size, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
   if (p == MAP_FAILED) throw std::bad_alloc();
   return p;
 }
 
-}  // namespace
-
-VoxelBlock* BlockPool::allocate(const VoxelKey& key) {
-  if (used_ + sizeof(VoxelBlock) > capacity_) {
-    const std::size_t size = slabs_.empty() ? kFirstSlab : std::min(kLargestSlab, slabs_.back().size * 2);
-    slabs_.push_back({map_slab(size), size});
-    bytes_ += size;
-    used_ = 0;
-    capacity_ = size;
-  }
-  void* at = static_cast<char*>(slabs_.back().memory) + used_;
-  used_ += sizeof(VoxelBlock);
-  return new (at) VoxelBlock(key);
+void unmap_slab(void* p, std::size_t size) noexcept {
+  if (!slab_cache().give(p, size)) munmap(p, size);
 }
 
-void BlockPool::release() noexcept {
-  // VoxelBlock is trivially destructible: the slabs can go without visiting each block.
-  for (const Slab& s : slabs_) munmap(s.memory, s.size);
+}  // namespace
+
+void* SlabArena::allocate(std::size_t size) {
+  // Sizes are 32 bytes (block headers) or powers of two from 64 bytes (cell arrays): rounding the
+  // offset up to min(size, 64) keeps every cell on its own cache line.
+  const std::size_t align = std::min<std::size_t>(size, 64);
+  std::size_t at = (used_ + align - 1) & ~(align - 1);
+  if (slabs_.empty() || at + size > capacity_) {
+    const std::size_t slab = slabs_.empty() ? kFirstSlab : std::min(kLargestSlab, slabs_.back().size * 2);
+    slabs_.push_back({map_slab(slab), slab});
+    bytes_ += slab;
+    capacity_ = slab;
+    at = 0;
+  }
+  used_ = at + size;
+  return static_cast<char*>(slabs_.back().memory) + at;
+}
+
+void SlabArena::release() noexcept {
+  for (const Slab& s : slabs_) unmap_slab(s.memory, s.size);
   slabs_.clear();
   used_ = capacity_ = bytes_ = 0;
+}
+
+Cell* CellPool::allocate(int size_class) {
+  FreeArray*& head = free_[static_cast<std::size_t>(size_class)];
+  if (head != nullptr) {
+    FreeArray* a = head;
+    head = a->next;
+    return reinterpret_cast<Cell*>(a);
+  }
+  return static_cast<Cell*>(arena_.allocate(sizeof(Cell) << size_class));
+}
+
+void CellPool::free(Cell* cells, int size_class) noexcept {
+  auto* a = reinterpret_cast<FreeArray*>(cells);
+  a->next = free_[static_cast<std::size_t>(size_class)];
+  free_[static_cast<std::size_t>(size_class)] = a;
+}
+
+void BlockGrid::add_cells(VoxelBlock& b, std::uint64_t added) {
+  const int old_count = b.num_cells();
+  if ((added & (added - 1)) == 0) {  // one cell, the common case of point updates
+    const int c = __builtin_ctzll(added);
+    const int at = b.rank(c);
+    const int old_class = CellPool::class_of(old_count);
+    const int new_class = CellPool::class_of(old_count + 1);
+    Cell* const from = b.cells;
+    if (from != nullptr && new_class == old_class) {
+      std::memmove(from + at + 1, from + at, sizeof(Cell) * static_cast<std::size_t>(old_count - at));
+      from[at] = Cell{};
+    } else {
+      Cell* const to = cells_pool_->allocate(new_class);
+      if (from != nullptr) {
+        std::memcpy(to, from, sizeof(Cell) * static_cast<std::size_t>(at));
+        std::memcpy(to + at + 1, from + at, sizeof(Cell) * static_cast<std::size_t>(old_count - at));
+        cells_pool_->free(from, old_class);
+      }
+      to[at] = Cell{};
+      b.cells = to;
+    }
+    b.cell_mask |= added;
+    ++cells_;
+    return;
+  }
+  const std::uint64_t mask = b.cell_mask | added;
+  const int count = popcount64(mask);
+  const int old_class = CellPool::class_of(old_count);
+  const int new_class = CellPool::class_of(count);
+  Cell* const from = b.cells;
+  Cell* to = from;
+  if (from == nullptr || new_class != old_class) to = cells_pool_->allocate(new_class);
+  // Merge from the top down, so that moving within one array never overwrites a cell not yet
+  // moved (a cell's new position is never below its old one).
+  int src = old_count - 1;
+  int dst = count - 1;
+  for (std::uint64_t m = mask; m != 0; --dst) {
+    const int c = 63 - __builtin_clzll(m);
+    m &= ~(std::uint64_t{1} << c);
+    if ((b.cell_mask >> c) & 1u)
+      to[dst] = from[src--];
+    else
+      to[dst] = Cell{};
+  }
+  if (from != nullptr && to != from) cells_pool_->free(from, old_class);
+  b.cells = to;
+  b.cell_mask = mask;
+  cells_ += static_cast<std::size_t>(count - old_count);
+}
+
+void BlockGrid::add_dense(const DenseBlock& dense) {
+  VoxelBlock& b = get_or_create(dense.key);
+  std::uint64_t mask = 0;
+  for (int i = 0; i < kBlockVoxels; ++i)
+    if (dense.voxels[static_cast<std::size_t>(i)].count != 0) mask |= std::uint64_t{1} << (i >> 3);
+  ensure_cells(b, mask);
+  b.for_each_slot([&](int i, const Voxel&) { b.existing(i) = dense.voxels[static_cast<std::size_t>(i)]; });
+  b.known = dense.known;
+}
+
+std::size_t BlockGrid::prune() {
+  auto headers = std::make_unique<SlabArena>();
+  auto pool = std::make_unique<CellPool>();
+  std::vector<VoxelBlock*> kept;
+  const std::size_t slots_before = num_slots();
+  std::size_t cells = 0;
+  for (VoxelBlock* b : blocks_) {
+    if (b->known == 0) continue;
+    // Keep the cells holding a known voxel.
+    std::uint64_t mask = 0;
+    b->for_each_slot([&](int i, const Voxel& v) {
+      if (v.count != 0) mask |= std::uint64_t{1} << (i >> 3);
+    });
+    auto* copy = new (headers->allocate(sizeof(VoxelBlock))) VoxelBlock(b->key);
+    copy->known = b->known;
+    copy->cell_mask = mask;
+    const int n = popcount64(mask);
+    copy->cells = pool->allocate(CellPool::class_of(n));
+    int r = 0;
+    for (std::uint64_t m = mask; m != 0; m &= m - 1) copy->cells[r++] = b->cells[b->rank(__builtin_ctzll(m))];
+    cells += static_cast<std::size_t>(n);
+    kept.push_back(copy);
+  }
+  kept.shrink_to_fit();
+  blocks_.swap(kept);
+  recent_->fill(nullptr);
+  headers_ = std::move(headers);
+  cells_pool_ = std::move(pool);
+  cells_ = cells;
+  index_.reset(blocks_.size());
+  for (std::uint32_t i = 0; i < blocks_.size(); ++i) index_.insert(blocks_[i]->key, i);
+  return slots_before - num_slots();
+}
+
+void BlockGrid::clear() {
+  blocks_.clear();
+  blocks_.shrink_to_fit();
+  headers_ = std::make_unique<SlabArena>();
+  cells_pool_ = std::make_unique<CellPool>();
+  index_.reset();
+  cells_ = 0;
+  recent_->fill(nullptr);
 }
 
 }  // namespace iwlomap::detail

@@ -1,14 +1,25 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #pragma once
 
-// The sparse block grid of the RAM backend (and of the Disk backend's tiles): voxels live in dense
-// 8x8x8 blocks, allocated on first touch; blocks are found through a FlatKeyMap keyed by block
-// coordinate. A voxel costs 8 bytes inside a block: float log-odds, uint16 count and 2 spare
-// bytes. Log-odds and count share a cache line, so an update costs one cache miss, not two
-// (measured: the separate arrays of a 6-byte layout made batch updates ~30% slower). A count of 0
-// means "unknown"; every observed voxel has count >= 1.
+// The sparse block grid of the RAM backend (and of the Disk backend's tiles). Voxels live in 8^3
+// blocks found through a FlatKeyMap keyed by block coordinate; inside a block they are stored in
+// 2^3 cells (64 bytes, one cache line), allocated on first touch. A block keeps a 64-bit mask of
+// its allocated cells and one array holding them in cell order, so finding a voxel is a popcount
+// away from the block header.
+//
+// Why cells: a surface (the endpoints of a scan, a sonar footprint) touches about ten voxels of
+// each 8^3 block it crosses; dense blocks made such maps cost 4 KiB a block and a page fault per
+// block, 3x OctoMap's memory, and filling an empty map was mostly the kernel handing out pages.
+// With cells the synthetic 65k-point scan takes 2.4 MiB instead of 19.6, while a block filled by
+// free space still costs 8 bytes a voxel plus a 32-byte header.
+//
+// A voxel costs 8 bytes: float log-odds, uint16 count and 2 spare bytes. Log-odds and count share
+// a cache line, so an update costs one cache miss, not two (measured: the separate arrays of a
+// 6-byte layout made batch updates ~30% slower). A count of 0 means "unknown"; every observed
+// voxel has count >= 1.
 
 #include "detail/flat_key_map.h"
+#include "detail/updater_kernel.h"
 #include "iwlomap/iwlo.h"
 #include "iwlomap/voxel_key.h"
 
@@ -16,6 +27,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <new>
 #include <type_traits>
 #include <vector>
 
@@ -24,6 +36,8 @@ namespace iwlomap::detail {
 inline constexpr int kBlockShift = 3;
 inline constexpr int kBlockEdge = 1 << kBlockShift;                 // voxels along a block edge
 inline constexpr int kBlockVoxels = kBlockEdge * kBlockEdge * kBlockEdge;  // 512
+inline constexpr int kCellVoxels = 8;                               // a cell is 2 x 2 x 2 voxels
+inline constexpr int kBlockCells = kBlockVoxels / kCellVoxels;      // 64
 
 // Arithmetic right shift is floor division by 8 for negative keys too (guaranteed by GCC and
 // Clang, and by the standard from C++20).
@@ -32,14 +46,43 @@ static_assert((-1 >> 1) == -1, "iwlomap needs arithmetic right shift of negative
 [[nodiscard]] inline VoxelKey block_of(const VoxelKey& k) noexcept {
   return {k.x >> kBlockShift, k.y >> kBlockShift, k.z >> kBlockShift};
 }
+
+// The index of a voxel inside its block is cell-major: bits 3..8 name the cell (x, y, z of the
+// cell, 2 bits each), bits 0..2 the voxel inside the cell. So the 8 voxels of a cell are 8
+// consecutive indices, and one byte of a 512-bit block mask (the scan scratch's) is one cell.
 [[nodiscard]] inline int index_in_block(const VoxelKey& k) noexcept {
-  constexpr int m = kBlockEdge - 1;
-  return (k.x & m) | ((k.y & m) << kBlockShift) | ((k.z & m) << (2 * kBlockShift));
+  const int cell = ((k.x >> 1) & 3) | (((k.y >> 1) & 3) << 2) | (((k.z >> 1) & 3) << 4);
+  return (cell << 3) | (k.x & 1) | ((k.y & 1) << 1) | ((k.z & 1) << 2);
 }
 [[nodiscard]] inline VoxelKey voxel_of(const VoxelKey& block, int index) noexcept {
-  constexpr int m = kBlockEdge - 1;
-  return {block.x * kBlockEdge + (index & m), block.y * kBlockEdge + ((index >> kBlockShift) & m),
-          block.z * kBlockEdge + ((index >> (2 * kBlockShift)) & m)};
+  const int cell = index >> 3;
+  return {block.x * kBlockEdge + ((cell & 3) << 1) + (index & 1),
+          block.y * kBlockEdge + (((cell >> 2) & 3) << 1) + ((index >> 1) & 1),
+          block.z * kBlockEdge + ((cell >> 4) << 1) + ((index >> 2) & 1)};
+}
+
+/// Number of set bits. Without a -m flag that enables the popcnt instruction, GCC makes
+/// __builtin_popcountll a library call, too slow for the voxel look-up; the bit-parallel sum is
+/// a dozen inline instructions.
+[[nodiscard]] inline int popcount64(std::uint64_t x) noexcept {
+#if defined(__POPCNT__)
+  return __builtin_popcountll(x);
+#else
+  x = x - ((x >> 1) & 0x5555555555555555ull);
+  x = (x & 0x3333333333333333ull) + ((x >> 2) & 0x3333333333333333ull);
+  x = (x + (x >> 4)) & 0x0f0f0f0f0f0f0f0full;
+  return static_cast<int>((x * 0x0101010101010101ull) >> 56);
+#endif
+}
+
+/// The cells (bit c) holding any set bit of one 64-bit word of a 512-bit block mask in
+/// index_in_block() order: word w covers cells 8w .. 8w + 7, so the result is shifted by 8w.
+[[nodiscard]] inline std::uint64_t cells_of_mask_word(std::uint64_t word, int w) noexcept {
+  std::uint64_t t = word | (word >> 4);
+  t |= t >> 2;
+  t |= t >> 1;
+  t &= 0x0101010101010101ull;  // bit 0 of each byte: "this cell has a bit"
+  return ((t * 0x0102040810204080ull) >> 56) << (8 * w);  // gathers those 8 bits into one byte
 }
 
 struct Voxel {
@@ -49,16 +92,54 @@ struct Voxel {
 };
 static_assert(sizeof(Voxel) == 8, "a voxel must stay within 8 bytes");
 
+struct alignas(64) Cell {
+  std::array<Voxel, kCellVoxels> voxels{};
+};
+static_assert(sizeof(Cell) == 64, "a cell is one cache line");
+
+/// An 8^3 block: a header of 32 bytes; its cells live in storage owned by the grid's CellPool.
 struct VoxelBlock {
   explicit VoxelBlock(const VoxelKey& k) : key(k) {}
-  std::array<Voxel, kBlockVoxels> voxels{};
-  std::uint32_t known = 0;  // voxels with count > 0
   VoxelKey key;
+  std::uint32_t known = 0;       // voxels with count > 0
+  std::uint64_t cell_mask = 0;   // bit c: cell c is allocated
+  Cell* cells = nullptr;         // the allocated cells in cell order, popcount(cell_mask) of them
+
+  [[nodiscard]] int num_cells() const noexcept { return popcount64(cell_mask); }
+  [[nodiscard]] bool has_cell(int cell) const noexcept { return ((cell_mask >> cell) & 1u) != 0; }
+  /// Position of allocated cell \p cell in `cells`.
+  [[nodiscard]] int rank(int cell) const noexcept {
+    return popcount64(cell_mask & ((std::uint64_t{1} << cell) - 1));
+  }
+  /// The voxel at \p index; its cell must be allocated.
+  [[nodiscard]] Voxel& existing(int index) noexcept { return cells[rank(index >> 3)].voxels[index & 7]; }
+  [[nodiscard]] const Voxel& existing(int index) const noexcept { return cells[rank(index >> 3)].voxels[index & 7]; }
+  /// The voxel at \p index, or nullptr when its cell is not allocated (so the voxel is unknown).
+  [[nodiscard]] const Voxel* find(int index) const noexcept {
+    return has_cell(index >> 3) ? &existing(index) : nullptr;
+  }
+  /// Calls fn(index, voxel) for every voxel of every allocated cell (unknown ones included), in
+  /// index order.
+  template <class Fn>
+  void for_each_slot(Fn&& fn) const {
+    std::uint64_t m = cell_mask;
+    for (int r = 0; m != 0; ++r) {
+      const int c = __builtin_ctzll(m);
+      m &= m - 1;
+      for (int v = 0; v < kCellVoxels; ++v) fn(c * kCellVoxels + v, cells[r].voxels[static_cast<std::size_t>(v)]);
+    }
+  }
+};
+static_assert(sizeof(VoxelBlock) == 32, "a block header is half a cache line");
+
+/// A block with all 512 voxels in place (index_in_block() order), for reading and writing tile
+/// files.
+struct DenseBlock {
+  VoxelKey key{};
+  std::uint32_t known = 0;
+  std::array<Voxel, kBlockVoxels> voxels{};
 };
 
-// Blocks are carved out of slabs rather than allocated one by one: a map of millions of voxels
-// allocates thousands of blocks per scan, and one heap allocation per block cost more than
-// updating it. Slabs grow from 64 KiB to 2 MiB and come from mmap (see block_grid.cpp).
 // The two ways a stored voxel changes, shared by every backend. Each returns true when the voxel
 // was unknown before, so the caller can count it in its own totals (the block's count is kept here).
 
@@ -67,7 +148,7 @@ inline bool observe_voxel(VoxelBlock& b, Voxel& v, double intensity, bool occupi
                           const iwlo::Updater& updater) {
   const bool was_unknown = v.count == 0;
   if (was_unknown) ++b.known;
-  iwlo::apply_observation(v.log_odds, v.count, intensity, occupied_flag, weight, updater);
+  update_voxel_state(v.log_odds, v.count, intensity, occupied_flag, weight, updater);
   return was_unknown;
 }
 
@@ -82,16 +163,22 @@ inline bool set_voxel_log_odds(VoxelBlock& b, Voxel& v, float log_odds) {
   return was_unknown;
 }
 
-static_assert(std::is_trivially_destructible_v<VoxelBlock>, "BlockPool releases slabs without destroying blocks");
+static_assert(std::is_trivially_destructible_v<VoxelBlock> && std::is_trivially_destructible_v<Cell>,
+              "the pools release slabs without destroying what they hold");
 
-class BlockPool {
+// Block headers and cells are carved out of slabs rather than allocated one by one: a map of
+// millions of voxels allocates thousands of blocks per scan, and one heap allocation each cost
+// more than updating them. Slabs grow from 64 KiB to 2 MiB and come from mmap (see block_grid.cpp).
+class SlabArena {
  public:
-  BlockPool() = default;
-  BlockPool(const BlockPool&) = delete;
-  BlockPool& operator=(const BlockPool&) = delete;
-  ~BlockPool() { release(); }
+  SlabArena() = default;
+  SlabArena(const SlabArena&) = delete;
+  SlabArena& operator=(const SlabArena&) = delete;
+  ~SlabArena() { release(); }
 
-  VoxelBlock* allocate(const VoxelKey& key);
+  /// \p size bytes (a multiple of 32, at most 4 KiB) aligned to \p size's largest power-of-two
+  /// divisor up to 64; zero-filled when fresh from the kernel, but callers must not rely on it.
+  void* allocate(std::size_t size);
   void release() noexcept;
   [[nodiscard]] std::size_t bytes() const noexcept { return bytes_; }
 
@@ -106,12 +193,33 @@ class BlockPool {
   std::size_t bytes_ = 0;     // all slabs
 };
 
+/// Storage of the cell arrays of blocks: arrays of 1, 2, 4, ..., 64 cells (size class k holds 2^k
+/// cells). A block's array grows to the next class when a cell is added to a full one; the old
+/// array goes to a free list of its class and is reused by the next array of that size.
+class CellPool {
+ public:
+  static constexpr int kClasses = 7;
+  [[nodiscard]] static int class_of(int cells) noexcept {  // smallest class holding \p cells (>= 1)
+    return cells <= 1 ? 0 : 32 - __builtin_clz(static_cast<unsigned>(cells - 1));
+  }
+  Cell* allocate(int size_class);
+  void free(Cell* cells, int size_class) noexcept;
+  [[nodiscard]] std::size_t bytes() const noexcept { return arena_.bytes(); }
+
+ private:
+  struct FreeArray {
+    FreeArray* next;
+  };
+  SlabArena arena_;
+  std::array<FreeArray*, kClasses> free_{};
+};
+
 class BlockGrid {
  public:
   BlockGrid() = default;
   BlockGrid(const BlockGrid&) = delete;
   BlockGrid& operator=(const BlockGrid&) = delete;
-  // Moving keeps every block where it is (the pool moves as a pointer).
+  // Moving keeps every block and cell where it is (the pools move as pointers).
   BlockGrid(BlockGrid&&) noexcept = default;
   BlockGrid& operator=(BlockGrid&&) noexcept = default;
 
@@ -121,54 +229,67 @@ class BlockGrid {
   }
 
   VoxelBlock& get_or_create(const VoxelKey& block_key) {
+    VoxelBlock*& cached = (*recent_)[recent_slot(block_key)];
+    if (cached != nullptr && cached->key == block_key) return *cached;
     const auto next = static_cast<std::uint32_t>(blocks_.size());
     const std::uint32_t i = index_.insert(block_key, next);
-    if (i == next) blocks_.push_back(pool_->allocate(block_key));
-    return *blocks_[i];
+    if (i == next) blocks_.push_back(new (headers_->allocate(sizeof(VoxelBlock))) VoxelBlock(block_key));
+    cached = blocks_[i];
+    return *cached;
   }
+
+  /// Allocates the cells of \p mask that \p b lacks (zero-filled). This moves b's cells: any
+  /// Voxel pointer or reference into b taken before is invalid afterwards.
+  void ensure_cells(VoxelBlock& b, std::uint64_t mask) {
+    if ((mask & ~b.cell_mask) != 0) add_cells(b, mask & ~b.cell_mask);
+  }
+
+  /// Voxel \p index of \p b, allocating its cell if needed (which moves b's other cells).
+  Voxel& voxel(VoxelBlock& b, int index) {
+    ensure_cells(b, std::uint64_t{1} << (index >> 3));
+    return b.existing(index);
+  }
+
+  /// Stores \p dense (its known voxels; the others stay unknown) as the block \p dense.key, which
+  /// must not be in the grid yet.
+  void add_dense(const DenseBlock& dense);
 
   [[nodiscard]] const std::vector<VoxelBlock*>& blocks() const noexcept { return blocks_; }
   [[nodiscard]] std::size_t num_blocks() const noexcept { return blocks_.size(); }
+  /// Voxel slots allocated (8 per cell).
+  [[nodiscard]] std::size_t num_slots() const noexcept { return cells_ * kCellVoxels; }
 
-  /// Drops blocks without known voxels (copying the others into fresh slabs, so the memory is
-  /// given back) and shrinks the index to fit; returns the voxel slots freed.
-  std::size_t prune() {
-    auto pool = std::make_unique<BlockPool>();
-    std::vector<VoxelBlock*> kept;
-    std::size_t freed = 0;
-    for (VoxelBlock* b : blocks_) {
-      if (b->known == 0) {
-        freed += kBlockVoxels;
-        continue;
-      }
-      VoxelBlock* copy = pool->allocate(b->key);
-      *copy = *b;
-      kept.push_back(copy);
-    }
-    kept.shrink_to_fit();
-    blocks_.swap(kept);
-    pool_ = std::move(pool);
-    index_.reset(blocks_.size());
-    for (std::uint32_t i = 0; i < blocks_.size(); ++i) index_.insert(blocks_[i]->key, i);
-    return freed;
-  }
+  /// Drops blocks and cells without known voxels (copying the rest into fresh slabs, so the
+  /// memory is given back) and shrinks the index to fit; returns the voxel slots freed.
+  std::size_t prune();
 
-  void clear() {
-    blocks_.clear();
-    blocks_.shrink_to_fit();
-    pool_ = std::make_unique<BlockPool>();
-    index_.reset();
-  }
+  void clear();
 
-  /// Bytes held: block slabs, the block pointer array and the index.
+  /// Bytes held: slabs of block headers and cells, the block pointer array and the index.
   [[nodiscard]] std::size_t bytes() const noexcept {
-    return pool_->bytes() + blocks_.capacity() * sizeof(blocks_[0]) + index_.bytes();
+    return headers_->bytes() + cells_pool_->bytes() + blocks_.capacity() * sizeof(blocks_[0]) + index_.bytes();
   }
 
  private:
-  std::unique_ptr<BlockPool> pool_ = std::make_unique<BlockPool>();
+  void add_cells(VoxelBlock& b, std::uint64_t added);
+
+  // A direct-mapped cache of recently used blocks in front of the index, by position: a scan's
+  // points run along rings, and a ring comes back to the blocks of the previous ring about a
+  // thousand points later, so most block changes of a batch hit here instead of walking the
+  // index (hash, slot, block pointer: three dependent cache misses on a large map). Only the
+  // writing path uses it; find() stays free of side effects for concurrent readers.
+  static constexpr int kRecentBits = 11;
+  [[nodiscard]] static std::size_t recent_slot(const VoxelKey& k) noexcept {
+    return static_cast<std::size_t>((k.x & 15) | ((k.y & 15) << 4) | ((k.z & 7) << 8));
+  }
+  std::unique_ptr<std::array<VoxelBlock*, std::size_t{1} << kRecentBits>> recent_ =
+      std::make_unique<std::array<VoxelBlock*, std::size_t{1} << kRecentBits>>();
+
+  std::unique_ptr<SlabArena> headers_ = std::make_unique<SlabArena>();
+  std::unique_ptr<CellPool> cells_pool_ = std::make_unique<CellPool>();
   std::vector<VoxelBlock*> blocks_;
   FlatKeyMap index_;
+  std::size_t cells_ = 0;
 };
 
 /// Writing accessor with a last-block cache: consecutive updates in one block skip the hash look-up.
@@ -178,6 +299,11 @@ class BlockAccessor {
   VoxelBlock& block(const VoxelKey& block_key) {
     if (last_ == nullptr || last_->key != block_key) last_ = &grid_->get_or_create(block_key);
     return *last_;
+  }
+  /// Voxel \p key (its block and cell allocated if needed); \p b receives its block.
+  Voxel& voxel(const VoxelKey& key, VoxelBlock*& b) {
+    b = &block(block_of(key));
+    return grid_->voxel(*b, index_in_block(key));
   }
 
  private:

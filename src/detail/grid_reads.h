@@ -25,10 +25,9 @@ template <class Fn>
 void for_each_known(const BlockGrid& grid, Fn&& fn) {
   for (const VoxelBlock* b : grid.blocks()) {
     if (b->known == 0) continue;
-    for (int i = 0; i < kBlockVoxels; ++i) {
-      const Voxel& v = b->voxels[static_cast<std::size_t>(i)];
+    b->for_each_slot([&](int i, const Voxel& v) {
       if (v.count != 0) fn(voxel_of(b->key, i), v);
-    }
+    });
   }
 }
 
@@ -48,9 +47,9 @@ void for_each_known(const BlockGrid& grid, Fn&& fn) {
 [[nodiscard]] inline std::optional<VoxelState> query_voxel(const BlockGrid& grid, const VoxelKey& key) {
   const VoxelBlock* b = grid.find(block_of(key));
   if (b == nullptr) return std::nullopt;
-  const Voxel& v = b->voxels[static_cast<std::size_t>(index_in_block(key))];
-  if (v.count == 0) return std::nullopt;
-  return state_of(v);
+  const Voxel* v = b->find(index_in_block(key));
+  if (v == nullptr || v->count == 0) return std::nullopt;
+  return state_of(*v);
 }
 
 }  // namespace iwlomap::detail

@@ -51,9 +51,11 @@ class ScanScratch {
   std::size_t collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                       const Eigen::VectorXd& intensities, double max_range, double resolution, int threads = 1);
 
-  /// Calls fn(block_key) for every grid block (8^3) that holds an observation, free or hit, in
-  /// (z, y, x) order of chunk keys: an order that depends on the scan only, never on which thread
-  /// cast which ray, so backends that allocate blocks in this order stay identical for any count.
+  /// Calls fn(block_key, cell_mask) for every grid block (8^3) that holds an observation, free or
+  /// hit, with bit c of cell_mask set for each 2^3 cell c of the block (see index_in_block()) that
+  /// holds one, in (z, y, x) order of chunk keys: an order that depends on the scan only, never on
+  /// which thread cast which ray, so backends that allocate blocks and cells in this order stay
+  /// identical for any thread count.
   template <class Fn>
   void for_each_block(Fn&& fn) const {
     std::vector<std::size_t> order(chunks_.size());
@@ -66,12 +68,12 @@ class ScanScratch {
     for (const std::size_t ci : order) {
       const Chunk& c = chunks_[ci];
       for (int b = 0; b < kBlocksPerChunk; ++b) {
-        std::uint64_t any = 0;
+        std::uint64_t cells = 0;
         for (int w = 0; w < kWordsPerBlock; ++w) {
           const std::size_t word = static_cast<std::size_t>(b * kWordsPerBlock + w);
-          any |= c.free[word] | c.hit[word];
+          cells |= cells_of_mask_word(c.free[word] | c.hit[word], w);
         }
-        if (any != 0) fn(block_key_of(c, b));
+        if (cells != 0) fn(block_key_of(c, b), cells);
       }
     }
   }

@@ -111,7 +111,10 @@ std::uint64_t encode_tile(const BlockGrid& grid, double resolution, std::uint32_
   out.assign(kTileHeaderBytes + payload, 0);
   std::uint8_t* p = out.data() + kTileHeaderBytes;
   std::uint64_t known = 0;
+  DenseBlock dense;  // one block with every voxel in place, read in file order
   for (const VoxelBlock* b : blocks) {
+    dense.voxels.fill(Voxel{});
+    b->for_each_slot([&](int i, const Voxel& v) { dense.voxels[static_cast<std::size_t>(i)] = v; });
     store_u32(p, static_cast<std::uint32_t>(b->key.x));
     store_u32(p + 4, static_cast<std::uint32_t>(b->key.y));
     store_u32(p + 8, static_cast<std::uint32_t>(b->key.z));
@@ -121,7 +124,7 @@ std::uint64_t encode_tile(const BlockGrid& grid, double resolution, std::uint32_
     for (int w = 0; w < kBlockVoxels / 64; ++w) {
       std::uint64_t bits = 0;
       for (int i = 0; i < 64; ++i) {
-        const Voxel& voxel = b->voxels[static_cast<std::size_t>(w * 64 + i)];
+        const Voxel& voxel = dense.voxels[file_to_block_index(w * 64 + i)];
         if (voxel.count == 0) continue;
         bits |= std::uint64_t{1} << i;
         std::uint32_t raw;

@@ -21,8 +21,9 @@
 //           68      u32 x 2 reserved (0)
 //           76      u32 CRC-32 of header bytes 0..75
 //   record  i32 x, y, z block coordinate (absolute, voxel key >> 3), u32 known voxels n (1..512),
-//           8 x u64 mask of the known voxels (bit i = index_in_block() i), then n x (f32 log-odds
-//           bits as u32, u16 count) in index order. Records are sorted by block coordinate, which
+//           8 x u64 mask of the known voxels (bit i = the voxel at x + 8 y + 64 z inside the
+//           block, whatever the in-memory layout), then n x (f32 log-odds bits as u32, u16 count)
+//           in that order. Records are sorted by block coordinate, which
 //           makes a file a canonical image of its tile and lets the reader detect duplicates.
 //
 // The header has its own checksum so that a map can be opened by reading headers only; the
@@ -45,6 +46,11 @@ inline constexpr std::uint32_t kTileFormatVersion = 1;
 inline constexpr std::size_t kTileHeaderBytes = 80;
 inline constexpr std::size_t kRecordFixedBytes = 12 + 4 + 64;  // key, count, mask
 inline constexpr std::size_t kVoxelBytes = 6;                  // f32 log-odds, u16 count
+
+/// index_in_block() of the voxel at file position \p f = x + 8 y + 64 z of a block record.
+[[nodiscard]] inline std::size_t file_to_block_index(int f) noexcept {
+  return static_cast<std::size_t>(index_in_block(VoxelKey{f & 7, (f >> 3) & 7, f >> 6}));
+}
 
 /// CRC-32 (IEEE 802.3 polynomial, reflected, as zlib's crc32()): \p crc is the value of the data
 /// before (0 to start).
@@ -75,12 +81,12 @@ std::uint64_t encode_tile(const BlockGrid& grid, double resolution, std::uint32_
                                            const std::string& path);
 
 /// Checks the payload checksum of a whole tile file \p bytes (whose header \p h was parsed) and
-/// calls fn(const VoxelBlock&) once per record, in file order. \p scratch is reused for every
+/// calls fn(const DenseBlock&) once per record, in file order. \p scratch is reused for every
 /// record: its voxels hold the record's known voxels and zeros elsewhere, its known field the
 /// record's count. Throws StorageError (kCorrupt) naming \p path for any inconsistency.
 template <class Fn>
 void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, std::uint32_t tile_voxels,
-                 const std::string& path, VoxelBlock& scratch, Fn&& fn);
+                 const std::string& path, DenseBlock& scratch, Fn&& fn);
 
 // ---- durable file operations (POSIX); each throws StorageError (kIo) naming the path ----
 
@@ -154,7 +160,7 @@ inline void store_u64(std::uint8_t* p, std::uint64_t v) noexcept {
 
 template <class Fn>
 void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, std::uint32_t tile_voxels,
-                 const std::string& path, VoxelBlock& scratch, Fn&& fn) {
+                 const std::string& path, DenseBlock& scratch, Fn&& fn) {
   if (bytes.size() != kTileHeaderBytes + h.payload_bytes)
     throw_corrupt(path, "the file has " + std::to_string(bytes.size()) + " bytes, its header announces " +
                             std::to_string(kTileHeaderBytes + h.payload_bytes) + " (changed while read?)");
@@ -199,7 +205,7 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
       while (m != 0) {
         const int i = w * 64 + __builtin_ctzll(m);
         m &= m - 1;
-        Voxel& v = scratch.voxels[static_cast<std::size_t>(i)];
+        Voxel& v = scratch.voxels[file_to_block_index(i)];
         const std::uint32_t raw = load_u32(p);
         static_assert(sizeof(float) == sizeof(std::uint32_t), "IEEE-754 binary32 floats expected");
         std::memcpy(&v.log_odds, &raw, sizeof raw);
@@ -210,7 +216,7 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
       }
     }
     known_total += n;
-    fn(static_cast<const VoxelBlock&>(scratch));
+    fn(static_cast<const DenseBlock&>(scratch));
   }
   if (p != end) throw_corrupt(path, "the payload has bytes after its last record");
   if (known_total != h.known_voxels)
