@@ -39,7 +39,6 @@ struct ProbabilityUpdater::Impl {
     const std::size_t skip = detail::validate_batch(points, intensities, is_occupied, weights, resolution);
     const detail::BatchValues in{intensities, is_occupied, weights};
     const detail::FloorDivider divide(resolution);
-    detail::BlockAccessor acc(grid);
     const Eigen::Index n = points.rows();
     for (Eigen::Index begin = 0; begin < n; begin += kChunkRows) {
       const Eigen::Index end = std::min<Eigen::Index>(n, begin + kChunkRows);
@@ -47,15 +46,14 @@ struct ProbabilityUpdater::Impl {
       const auto rows = static_cast<std::size_t>(end - begin);
       for (int c = 0; c < 3; ++c)
         divide.floor_many(points.col(c).data() + begin, rows, keys[static_cast<std::size_t>(c)].data(), flags.data());
-      const auto key_at = [this](std::size_t r) {
-        return VoxelKey{static_cast<std::int32_t>(keys[0][r]), static_cast<std::int32_t>(keys[1][r]),
-                        static_cast<std::int32_t>(keys[2][r])};
-      };
       for (Eigen::Index i = begin; i < end; ++i) {
         const auto r = static_cast<std::size_t>(i - begin);
-        if (!detail::row_is_finite(points, intensities, i)) continue;
-        const VoxelKey key = key_at(r);
-        detail::VoxelBlock& b = acc.block(detail::block_of(key));
+        if (skip != 0 && !detail::row_is_finite(points, intensities, i)) continue;
+        const VoxelKey key{static_cast<std::int32_t>(keys[0][r]), static_cast<std::int32_t>(keys[1][r]),
+                           static_cast<std::int32_t>(keys[2][r])};
+        // Straight to the grid's cache of recent blocks, not through a last-block accessor: a
+        // scan's rows change block every two or three rows, and that branch mispredicted.
+        detail::VoxelBlock& b = grid.get_or_create(detail::block_of(key));
         const int index = detail::index_in_block(key);
         grid.ensure_cells(b, std::uint64_t{1} << (index >> 3));
         chunk[count++] = {&b, nullptr, index, static_cast<std::uint32_t>(i)};

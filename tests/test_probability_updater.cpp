@@ -523,6 +523,29 @@ TEST_F(ProbabilityUpdaterBadInput, ThrowsOutOfRangeAndKeepsMapWhenPointBeyondInt
   expect_unchanged();
 }
 
+// Rows the quick whole-batch check cannot vouch for go through the row-by-row check: a weight of
+// -0 (which is >= 0), points between 0.999 * 2^31 voxels and the end of the int32 range, and a
+// non-finite intensity (skipped). All are valid and applied.
+TEST(ProbabilityUpdater, AppliesRowsThatNeedTheDetailedCheck) {
+  const double r = 0.05;
+  const double far = 2147483000.0 * r;  // key 2147483000: beyond 0.999 * 2^31, inside int32
+  ProbabilityUpdater map(r);
+  map.batch_update_iwlo(rows({{0.01, 0.01, 0.01}, {far, 0.01, -far}, {0.2, 0.2, 0.2}}), values({200, 200, kNaN}),
+                        {true, true, true}, values({-0.0, 1.0, 1.0}));
+  EXPECT_EQ(map.get_num_nodes(), 2u);
+  EXPECT_EQ(map.get_num_skipped_points(), 1u);
+  const auto zero_weight = map.query(Eigen::Vector3d(0.01, 0.01, 0.01));
+  ASSERT_TRUE(zero_weight.has_value());
+  EXPECT_EQ(zero_weight->log_odds, 0.0);  // dL * (-0) = 0
+  EXPECT_EQ(zero_weight->count, 1u);
+  const auto far_voxel = map.query(Eigen::Vector3d(far, 0.01, -far));
+  ASSERT_TRUE(far_voxel.has_value());
+  EXPECT_GT(far_voxel->log_odds, 0.0f);
+  std::map<VoxelKey, std::uint32_t> keys;
+  for (const auto& [k, v] : snapshot(map)) keys[k] = v.second;
+  EXPECT_EQ(keys.count(world_to_key(Eigen::Vector3d(far, 0.01, -far), r)), 1u);
+}
+
 TEST_F(ProbabilityUpdaterBadInput, NoOpWhenBatchEmpty) {
   map_.batch_update_iwlo(Eigen::MatrixXd(0, 3), Eigen::VectorXd(0), {});
   map_.batch_update_iwlo(Eigen::MatrixXd(0, 3), Eigen::VectorXd(0), {}, Eigen::VectorXd(0));

@@ -3,6 +3,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <sstream>
 #include <stdexcept>
@@ -43,6 +44,40 @@ bool checked_key(const Eigen::Vector3d& p, const FloorDivider& divide, VoxelKey&
   return true;
 }
 
+std::int64_t bits_of(double d) {
+  std::int64_t b;
+  std::memcpy(&b, &d, sizeof b);
+  return b;
+}
+
+// True when every row is finite, inside +-safe on every axis and has a finite weight >= 0: the
+// common case, which then needs no per-row checks. Branch-free so that it vectorises: x - x is
+// +0 (all bits clear) for a finite x and NaN otherwise; |x| - safe is negative (sign bit set)
+// inside the range; a weight w is fine when w - w is +0 and the sign bit of w is clear (-0 is
+// fine too, but goes the slow way).
+bool all_rows_plain(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities, const Eigen::VectorXd* weights,
+                    double safe) {
+  const Eigen::Index n = points.rows();
+  if (n == 0) return true;
+  const double* x = points.col(0).data();
+  const double* y = points.col(1).data();
+  const double* z = points.col(2).data();
+  const double* in = intensities.data();
+  std::int64_t not_finite = 0;
+  std::int64_t inside = -1;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    not_finite |= bits_of(x[i] - x[i]) | bits_of(y[i] - y[i]) | bits_of(z[i] - z[i]) | bits_of(in[i] - in[i]);
+    inside &= bits_of(std::abs(x[i]) - safe) & bits_of(std::abs(y[i]) - safe) & bits_of(std::abs(z[i]) - safe);
+  }
+  if (weights != nullptr) {
+    const double* w = weights->data();
+    std::int64_t bad_weight = 0;
+    for (Eigen::Index i = 0; i < n; ++i) bad_weight |= bits_of(w[i] - w[i]) | (bits_of(w[i]) & std::numeric_limits<std::int64_t>::min());
+    not_finite |= bad_weight;
+  }
+  return not_finite == 0 && inside < 0;
+}
+
 }  // namespace
 
 void throw_out_of_range(Eigen::Index i, const Eigen::Vector3d& p, double resolution) {
@@ -66,10 +101,11 @@ std::size_t validate_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd&
   if (static_cast<std::uint64_t>(n) > std::numeric_limits<std::uint32_t>::max())
     throw std::invalid_argument("iwlomap: a batch holds at most 4294967295 points, got " + std::to_string(n) +
                                 " (split it)");
-  const FloorDivider divide(resolution);
   // Coordinates below this magnitude have keys well inside int32 (the quotient stays below
   // 0.999 * 2^31, far more than any rounding away from the limit); the others are checked exactly.
   const double safe = 0.999 * 2147483648.0 * resolution;
+  if (all_rows_plain(points, intensities, weights, safe)) return 0;
+  const FloorDivider divide(resolution);
   std::size_t skipped = 0;
   for (Eigen::Index i = 0; i < n; ++i) {
     const double w = weights != nullptr ? (*weights)[i] : 1.0;
