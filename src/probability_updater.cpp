@@ -31,9 +31,10 @@ struct ProbabilityUpdater::Impl {
 
   // The batch is validated first (nothing changes when it throws), then applied in chunks of
   // rows, each in two passes: resolve every row's voxel (allocating blocks and cells), then update
-  // with the voxel of a later row prefetched, which hides most cache misses on large maps. Voxel
-  // addresses are taken only in the second pass (adding a cell moves its block's cells). A chunk's
-  // targets stay in L1; converting whole batches first cost a write and a read of 32 bytes a row.
+  // with the voxel of a later row prefetched, which hides most cache misses on large maps. When a
+  // cell was added during the first pass, the voxel addresses are taken again before the second
+  // (adding a cell moves its block's cells). A chunk's targets stay in L1; converting whole
+  // batches first cost a write and a read of 32 bytes a row.
   void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                    const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights) {
     const std::size_t skip = detail::validate_batch(points, intensities, is_occupied, weights, resolution);
@@ -43,6 +44,7 @@ struct ProbabilityUpdater::Impl {
     for (Eigen::Index begin = 0; begin < n; begin += kChunkRows) {
       const Eigen::Index end = std::min<Eigen::Index>(n, begin + kChunkRows);
       std::size_t count = 0;
+      bool moved = false;  // some cell was added in this chunk
       const auto rows = static_cast<std::size_t>(end - begin);
       for (int c = 0; c < 3; ++c)
         divide.floor_many(points.col(c).data() + begin, rows, keys[static_cast<std::size_t>(c)].data(), flags.data());
@@ -55,10 +57,16 @@ struct ProbabilityUpdater::Impl {
         // scan's rows change block every two or three rows, and that branch mispredicted.
         detail::VoxelBlock& b = grid.get_or_create(detail::block_of(key));
         const int index = detail::index_in_block(key);
-        grid.ensure_cells(b, std::uint64_t{1} << (index >> 3));
-        chunk[count++] = {&b, nullptr, index, static_cast<std::uint32_t>(i)};
+        const std::uint64_t cell = std::uint64_t{1} << (index >> 3);
+        if ((b.cell_mask & cell) == 0) {
+          grid.ensure_cells(b, cell);
+          moved = true;
+        }
+        chunk[count++] = {&b, &b.existing(index), index, static_cast<std::uint32_t>(i)};
       }
-      for (std::size_t j = 0; j < count; ++j) chunk[j].voxel = &chunk[j].block->existing(chunk[j].index);
+      // A cell added to a block moves the block's cells: take the addresses again.
+      if (moved)
+        for (std::size_t j = 0; j < count; ++j) chunk[j].voxel = &chunk[j].block->existing(chunk[j].index);
       constexpr std::size_t kAhead = 16;
       for (std::size_t j = 0; j < count; ++j) {
         if (j + kAhead < count) __builtin_prefetch(chunk[j + kAhead].voxel, 1);
@@ -77,7 +85,7 @@ struct ProbabilityUpdater::Impl {
   detail::ScanScratch scratch;
   struct Target {
     detail::VoxelBlock* block;
-    detail::Voxel* voxel;  // set once the chunk's cells are all allocated
+    detail::Voxel* voxel;  // valid once the chunk's cells are all allocated
     int index;             // index_in_block()
     std::uint32_t row;  // in the batch
   };

@@ -90,7 +90,9 @@ class FloorDivider {
     if (fast_ && any >= 0) return;
     for (std::size_t i = 0; i < n; ++i) {
       if (fast_ && flags[i] >= 0) continue;
-      const double k = (*this)(x[i]);  // NaN for a non-finite x
+      // A coordinate of exactly 0 (a ground plane at z = 0, a planar scan) is common and needs no
+      // division; any other value near a voxel face does.
+      const double k = x[i] == 0.0 ? 0.0 : (*this)(x[i]);  // NaN for a non-finite x
       out[i] = k >= -0x1p31 && k < 0x1p31 ? static_cast<std::int64_t>(k) : 0;
     }
   }
