@@ -143,6 +143,25 @@ TEST(OctreeMapper, MirrorsExactLogOddsIntoOctreeWhenScansAndBatches) {
   EXPECT_EQ(map.get_num_nodes(), exact.size());
 }
 
+// The OctoMap backend keeps the RAM backend's exact state in the same layout, so the two list
+// their occupied voxels in the same order, not only as the same set.
+TEST(OctreeMapper, ListsOccupiedVoxelsInTheRamBackendsOrderWhenScansAndBatches) {
+  const double r = 0.2;
+  OctreeMapper octo(r);
+  ProbabilityUpdater ram(r);
+  fill_with_scans(octo);
+  fill_with_scans(ram);
+  std::mt19937 rng(9u);
+  std::uniform_real_distribution<double> c(-3.0, 3.0);
+  Eigen::MatrixXd pts(3000, 3);
+  for (Eigen::Index i = 0; i < pts.rows(); ++i) pts.row(i) << c(rng), c(rng), c(rng);
+  for (IMapperBackend* m : {static_cast<IMapperBackend*>(&octo), static_cast<IMapperBackend*>(&ram)})
+    m->batch_update_iwlo(pts, Eigen::VectorXd::Constant(3000, 180.0), std::vector<bool>(3000, true));
+  const Eigen::MatrixXd a = octo.get_occupied_voxels(), b = ram.get_occupied_voxels();
+  ASSERT_GT(a.rows(), 100);
+  EXPECT_TRUE(a == b);
+}
+
 TEST(OctreeMapper, UsesOctomapKeysOffsetByHalfRangeWhenNegativeCoordinates) {
   TempDir dir;
   const double r = 0.1;
