@@ -19,6 +19,7 @@
 //
 // Usage: bench_core [--reps N] [--resolution R] [--data DIR] [--quick]
 
+#include "bench_util.h"
 #include "iwlomap/iwlo.h"
 #include "iwlomap/probability_updater.h"
 #include "iwlomap/synthetic_scan.h"
@@ -453,16 +454,26 @@ std::pair<Row, Row> measure(const Options& o, const ScanInput& in, const std::st
   first.name = first_name;
   steady.name = steady_name;
   first.points = steady.points = static_cast<std::size_t>(in.points.rows());
-  (void)iw_fn(o.resolution, in);
-  (void)om_fn(o.resolution, in);
+  // Each call starts from a settled heap: the octree freed by the previous call must not make
+  // the next call's first large allocation pay for merging its chunks (see settle_heap()).
+  const auto iw_call = [&] {
+    iwlomap::bench::settle_heap();
+    return iw_fn(o.resolution, in);
+  };
+  const auto om_call = [&] {
+    iwlomap::bench::settle_heap();
+    return om_fn(o.resolution, in);
+  };
+  (void)iw_call();
+  (void)om_call();
   for (int i = 0; i < o.reps; ++i) {
     TimePair iw, om;
     if (i % 2 == 0) {
-      iw = iw_fn(o.resolution, in);
-      om = om_fn(o.resolution, in);
+      iw = iw_call();
+      om = om_call();
     } else {
-      om = om_fn(o.resolution, in);
-      iw = iw_fn(o.resolution, in);
+      om = om_call();
+      iw = iw_call();
     }
     for (auto [row, iw_s, om_s] : {std::tuple<Row*, Sample, Sample>{&first, iw.first, om.first},
                                    std::tuple<Row*, Sample, Sample>{&steady, iw.second, om.second}}) {
