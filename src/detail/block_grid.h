@@ -265,9 +265,11 @@ class BlockGrid {
 
   void clear();
 
-  /// Bytes held: slabs of block headers and cells, the block pointer array and the index.
+  /// Bytes held: slabs of block headers and cells, the block pointer array, the index and the
+  /// cache of recent blocks.
   [[nodiscard]] std::size_t bytes() const noexcept {
-    return headers_->bytes() + cells_pool_->bytes() + blocks_.capacity() * sizeof(blocks_[0]) + index_.bytes();
+    return headers_->bytes() + cells_pool_->bytes() + blocks_.capacity() * sizeof(blocks_[0]) + index_.bytes() +
+           sizeof(*recent_);
   }
 
  private:
