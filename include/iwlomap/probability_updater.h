@@ -14,7 +14,7 @@ namespace iwlomap {
 /// coordinate; inside a block they are stored in 2x2x2 cells of 64 bytes, allocated the first time
 /// one of their voxels is observed, so a surface costs about what it covers and free space fills
 /// whole blocks. A voxel costs 8 bytes (float log-odds, uint16 observation count, 2 spare), a block
-/// a 32-byte header. Keys are int32, so a map at 0.05 m spans +-107,000 km. The memory of
+/// a 104-byte header. Keys are int32, so a map at 0.05 m spans +-107,000 km. The memory of
 /// destroyed maps (up to 64 MiB in all) is kept for the next map of the process, which then
 /// skips the kernel's first-touch cost.
 ///

@@ -78,10 +78,7 @@ void unmap_slab(void* p, std::size_t size) noexcept {
 
 }  // namespace
 
-void* SlabArena::allocate(std::size_t size) {
-  // Sizes are 32 bytes (block headers) or powers of two from 64 bytes (cell arrays): rounding the
-  // offset up to min(size, 64) keeps every cell on its own cache line.
-  const std::size_t align = std::min<std::size_t>(size, 64);
+void* SlabArena::allocate(std::size_t size, std::size_t align) {
   std::size_t at = (used_ + align - 1) & ~(align - 1);
   if (slabs_.empty() || at + size > capacity_) {
     const std::size_t slab = slabs_.empty() ? kFirstSlab : std::min(kLargestSlab, slabs_.back().size * 2);
@@ -107,7 +104,7 @@ Cell* CellPool::allocate(int size_class) {
     head = a->next;
     return reinterpret_cast<Cell*>(a);
   }
-  return static_cast<Cell*>(arena_.allocate(sizeof(Cell) << size_class));
+  return static_cast<Cell*>(arena_.allocate(sizeof(Cell) << size_class, alignof(Cell)));
 }
 
 void CellPool::free(Cell* cells, int size_class) noexcept {
@@ -117,52 +114,28 @@ void CellPool::free(Cell* cells, int size_class) noexcept {
 }
 
 void BlockGrid::add_cells(VoxelBlock& b, std::uint64_t added) {
-  const int old_count = b.num_cells();
-  if ((added & (added - 1)) == 0) {  // one cell, the common case of point updates
-    const int c = __builtin_ctzll(added);
-    const int at = b.rank(c);
-    const int old_class = CellPool::class_of(old_count);
-    const int new_class = CellPool::class_of(old_count + 1);
-    Cell* const from = b.cells;
-    if (from != nullptr && new_class == old_class) {
-      std::memmove(from + at + 1, from + at, sizeof(Cell) * static_cast<std::size_t>(old_count - at));
-      from[at] = Cell{};
-    } else {
-      Cell* const to = cells_pool_->allocate(new_class);
-      if (from != nullptr) {
-        std::memcpy(to, from, sizeof(Cell) * static_cast<std::size_t>(at));
-        std::memcpy(to + at + 1, from + at, sizeof(Cell) * static_cast<std::size_t>(old_count - at));
-        cells_pool_->free(from, old_class);
-      }
-      to[at] = Cell{};
-      b.cells = to;
-    }
-    b.cell_mask |= added;
-    ++cells_;
-    return;
-  }
-  const std::uint64_t mask = b.cell_mask | added;
-  const int count = popcount64(mask);
+  // New cells go to the end of the block's array, so no cell ever moves within it; the array
+  // doubles when full (one copy of the cells, amortised below one per added cell).
+  const int old_count = b.count;
+  const int count = old_count + popcount64(added);
   const int old_class = CellPool::class_of(old_count);
   const int new_class = CellPool::class_of(count);
-  Cell* const from = b.cells;
-  Cell* to = from;
-  if (from == nullptr || new_class != old_class) to = cells_pool_->allocate(new_class);
-  // Merge from the top down, so that moving within one array never overwrites a cell not yet
-  // moved (a cell's new position is never below its old one).
-  int src = old_count - 1;
-  int dst = count - 1;
-  for (std::uint64_t m = mask; m != 0; --dst) {
-    const int c = 63 - __builtin_clzll(m);
-    m &= ~(std::uint64_t{1} << c);
-    if ((b.cell_mask >> c) & 1u)
-      to[dst] = from[src--];
-    else
-      to[dst] = Cell{};
+  if (b.cells == nullptr || new_class != old_class) {
+    Cell* const to = cells_pool_->allocate(new_class);
+    if (b.cells != nullptr) {
+      std::memcpy(to, b.cells, sizeof(Cell) * static_cast<std::size_t>(old_count));
+      cells_pool_->free(b.cells, old_class);
+    }
+    b.cells = to;
   }
-  if (from != nullptr && to != from) cells_pool_->free(from, old_class);
-  b.cells = to;
-  b.cell_mask = mask;
+  int at = old_count;
+  for (std::uint64_t m = added; m != 0; m &= m - 1) {
+    b.cells[at] = Cell{};
+    b.position[static_cast<std::size_t>(__builtin_ctzll(m))] = static_cast<std::uint8_t>(at);
+    ++at;
+  }
+  b.cell_mask |= added;
+  b.count = static_cast<std::uint8_t>(count);
   cells_ += static_cast<std::size_t>(count - old_count);
 }
 
@@ -189,13 +162,18 @@ std::size_t BlockGrid::prune() {
     b->for_each_slot([&](int i, const Voxel& v) {
       if (v.count != 0) mask |= std::uint64_t{1} << (i >> 3);
     });
-    auto* copy = new (headers->allocate(sizeof(VoxelBlock))) VoxelBlock(b->key);
+    auto* copy = new (headers->allocate(sizeof(VoxelBlock), alignof(VoxelBlock))) VoxelBlock(b->key);
     copy->known = b->known;
     copy->cell_mask = mask;
     const int n = popcount64(mask);
+    copy->count = static_cast<std::uint8_t>(n);
     copy->cells = pool->allocate(CellPool::class_of(n));
     int r = 0;
-    for (std::uint64_t m = mask; m != 0; m &= m - 1) copy->cells[r++] = b->cells[b->rank(__builtin_ctzll(m))];
+    for (std::uint64_t m = mask; m != 0; m &= m - 1, ++r) {
+      const auto c = static_cast<std::size_t>(__builtin_ctzll(m));
+      copy->cells[r] = b->cells[b->position[c]];
+      copy->position[c] = static_cast<std::uint8_t>(r);
+    }
     cells += static_cast<std::size_t>(n);
     kept.push_back(copy);
   }
