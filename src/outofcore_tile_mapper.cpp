@@ -599,7 +599,7 @@ struct OutofcoreTileMapper::Impl {
   }
 
   // Resolves the voxel of an observation for the update pass: its block and cell are allocated
-  // now, its address is taken only in the update pass (adding a cell moves the block's cells).
+  // now, its address is taken only in the update pass (adding a cell may move the block's cells).
   static std::pair<detail::VoxelBlock*, int> resolve(detail::BlockAccessor& acc, detail::BlockGrid& grid,
                                                      const VoxelKey& key) {
     detail::VoxelBlock& b = acc.block(detail::block_of(key));

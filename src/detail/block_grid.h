@@ -243,13 +243,13 @@ class BlockGrid {
     return *cached;
   }
 
-  /// Allocates the cells of \p mask that \p b lacks (zero-filled). This moves b's cells: any
-  /// Voxel pointer or reference into b taken before is invalid afterwards.
+  /// Allocates the cells of \p mask that \p b lacks (zero-filled). When b's array grows, its
+  /// cells move: a Voxel pointer or reference into b taken before may be invalid afterwards.
   void ensure_cells(VoxelBlock& b, std::uint64_t mask) {
     if ((mask & ~b.cell_mask) != 0) add_cells(b, mask & ~b.cell_mask);
   }
 
-  /// Voxel \p index of \p b, allocating its cell if needed (which moves b's other cells).
+  /// Voxel \p index of \p b, allocating its cell if needed (which may move b's other cells).
   Voxel& voxel(VoxelBlock& b, int index) {
     ensure_cells(b, std::uint64_t{1} << (index >> 3));
     return b.existing(index);
