@@ -6,6 +6,7 @@
 #include "detail/absolute_log_odds.h"
 #include "detail/batch_input.h"
 #include "detail/block_grid.h"
+#include "detail/free_memory.h"
 #include "detail/grid_reads.h"
 #include "detail/param_setters.h"
 #include "detail/scan_scratch.h"
@@ -883,7 +884,7 @@ void OctreeMapper::clear() {
   m.tree.clear();
   m.grid.clear();
   m.scratch.release();
-  m.batch = {};
+  detail::free_memory(m.batch);
   m.ray.reset();
   m.known = 0;
   m.skipped = 0;
@@ -893,7 +894,7 @@ void OctreeMapper::clear() {
 size_t OctreeMapper::prune() {
   Impl& m = impl();
   m.scratch.release();
-  m.batch = {};
+  detail::free_memory(m.batch);
   m.ray.reset();
   return prune_tree();
 }

@@ -4,6 +4,7 @@
 #include "detail/absolute_log_odds.h"
 #include "detail/batch_input.h"
 #include "detail/block_grid.h"
+#include "detail/free_memory.h"
 #include "detail/grid_reads.h"
 #include "detail/flat_key_map.h"
 #include "detail/param_setters.h"
@@ -905,9 +906,9 @@ struct OutofcoreTileMapper::Impl {
     skipped = 0;
     peak_resident = 0;
     scratch.release();
-    batch = {};
-    targets = {};
-    io_buffer = {};
+    detail::free_memory(batch);
+    detail::free_memory(targets);
+    detail::free_memory(io_buffer);
     detail::sync_directory(dir);
     dir_sync_pending = false;
     if (first_error) std::rethrow_exception(first_error);
@@ -1187,13 +1188,15 @@ size_t OutofcoreTileMapper::prune() {
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
   m.scratch.release();
+  detail::free_memory(m.batch);
+  detail::free_memory(m.targets);
   m.routing = Routing{};
-  m.slot_chunks = {};
-  m.slot_last_chunk = {};
-  m.slot_group = {};
-  m.slot_tile = {};
-  m.group_chunks = {};
-  m.io_buffer = {};
+  detail::free_memory(m.slot_chunks);
+  detail::free_memory(m.slot_last_chunk);
+  detail::free_memory(m.slot_group);
+  detail::free_memory(m.slot_tile);
+  detail::free_memory(m.group_chunks);
+  detail::free_memory(m.io_buffer);
   std::size_t freed = 0;
   for (auto& t : m.resident) freed += t->grid.prune();
   return freed;

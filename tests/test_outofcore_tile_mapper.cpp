@@ -1058,6 +1058,24 @@ TEST(OutofcoreTileMapper, KeepsMapWhenMovedAndThrowsLogicErrorWhenMovedFrom) {
   expect_same_map(reopened_c, ram);
 }
 
+// prune() gives the per-call buffers back (a large batch leaves large ones), keeping every voxel.
+TEST(OutofcoreTileMapper, GivesBufferMemoryBackWhenPruned) {
+  const TempDir tmp;
+  OutofcoreTileMapper map(tmp.sub("map"), 0.1, 6.4, 16);
+  std::mt19937 rng(21u);
+  std::uniform_real_distribution<double> c(0.0, 6.3);  // one tile
+  const Eigen::Index n = 400000;
+  Eigen::MatrixXd pts(n, 3);
+  for (Eigen::Index i = 0; i < n; ++i) pts.row(i) << c(rng), c(rng), c(rng);
+  map.batch_update_iwlo(pts, Eigen::VectorXd::Constant(n, 200.0), std::vector<bool>(static_cast<std::size_t>(n), true));
+  const Snapshot before = snapshot(map);
+  const double mb_before = map.get_memory_usage().memory_mb;
+  (void)map.prune();
+  // The batch's observations (16 bytes a row) and targets (16 bytes a row) alone were 12 MB.
+  EXPECT_LT(map.get_memory_usage().memory_mb, mb_before - 10.0);
+  EXPECT_EQ(snapshot(map), before);
+}
+
 TEST(OutofcoreTileMapper, KeepsPeakResidentTilesWithinCacheWhenMapLarger) {
   const TempDir tmp;
   OutofcoreTileMapper map(tmp.sub("map"), tile_test::kResolution, tile_test::kTileSize, 2);

@@ -2,6 +2,7 @@
 #include "detail/scan_scratch.h"
 
 #include "detail/batch_input.h"
+#include "detail/free_memory.h"
 #include "iwlomap/ray_caster.h"
 
 #include <algorithm>
@@ -136,12 +137,12 @@ std::size_t ScanScratch::bytes() const noexcept {
 }
 
 void ScanScratch::release() {
-  chunks_ = {};
-  hits_ = {};
+  free_memory(chunks_);
+  free_memory(hits_);
   chunk_index_.reset();
   hit_index_.reset();
   last_ = -1;
-  helpers_ = {};
+  free_memory(helpers_);
 }
 
 }  // namespace iwlomap::detail
