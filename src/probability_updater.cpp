@@ -29,12 +29,14 @@ struct ProbabilityUpdater::Impl {
     if (detail::observe_voxel(b, v, intensity, occupied_flag, weight, updater)) ++known;
   }
 
-  // The batch is validated first (nothing changes when it throws), then applied in chunks of
-  // rows, each in two passes: resolve every row's voxel (allocating blocks and cells), then update
-  // with the voxel of a later row prefetched, which hides most cache misses on large maps. When a
-  // cell was added during the first pass, the voxel addresses are taken again before the second
-  // (adding a cell may move its block's cells). A chunk's targets stay in L1; converting whole
-  // batches first (40-byte observations, 16-byte targets) cost a write and a read of 56 bytes a row.
+  // The batch is validated first (nothing changes when it throws for its input), then applied in
+  // chunks of rows, each in two passes: resolve every row's voxel (allocating blocks and cells),
+  // then update with the voxel of a later row prefetched, which hides most cache misses on large
+  // maps. When a cell was added during the first pass, the voxel addresses are taken again before
+  // the second (adding a cell may move its block's cells). A chunk's targets stay in L1;
+  // converting whole batches first (40-byte observations, 16-byte targets) cost a write and a
+  // read of 56 bytes a row. The price: when memory runs out (std::bad_alloc) the chunks before the
+  // failing one stay applied; the map stays consistent (voxel states, counts, skipped rows).
   void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                    const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights) {
     const std::size_t skip = detail::validate_batch(points, intensities, is_occupied, weights, resolution);
@@ -50,7 +52,10 @@ struct ProbabilityUpdater::Impl {
         divide.floor_many(points.col(c).data() + begin, rows, keys[static_cast<std::size_t>(c)].data(), flags.data());
       for (Eigen::Index i = begin; i < end; ++i) {
         const auto r = static_cast<std::size_t>(i - begin);
-        if (skip != 0 && !detail::row_is_finite(points, intensities, i)) continue;
+        if (skip != 0 && !detail::row_is_finite(points, intensities, i)) {
+          ++skipped;  // counted chunk by chunk, so that the count matches the rows applied
+          continue;
+        }
         const VoxelKey key{static_cast<std::int32_t>(keys[0][r]), static_cast<std::int32_t>(keys[1][r]),
                            static_cast<std::int32_t>(keys[2][r])};
         // Straight to the grid's cache of recent blocks, not through a last-block accessor: a
@@ -74,7 +79,6 @@ struct ProbabilityUpdater::Impl {
         apply_voxel(*t.block, *t.voxel, in.intensity(t.row), in.occupied_flag(t.row), in.weight(t.row));
       }
     }
-    skipped += skip;
   }
 
   void set(const IwloParams& p) { updater = iwlo::Updater(p); }

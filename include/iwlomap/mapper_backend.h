@@ -9,8 +9,10 @@
 /// iwlo.h. Each call handles a whole batch: there is one virtual call per batch, never per voxel.
 ///
 /// Errors: size mismatches and invalid parameters throw std::invalid_argument naming the value;
-/// a call that throws changes nothing. Non-finite points are skipped and counted
-/// (get_num_skipped_points()). An empty batch is a no-op.
+/// a call that throws for its input changes nothing. When memory runs out (std::bad_alloc) the map
+/// stays consistent, but a batch may be partly applied (the RAM backend applies batches in chunks
+/// of 512 rows). Non-finite points are skipped and counted (get_num_skipped_points()). An empty
+/// batch is a no-op.
 
 #include "iwlomap/hit_statistics.h"
 #include "iwlomap/iwlo.h"

@@ -97,20 +97,22 @@ void SlabArena::release() noexcept {
   used_ = capacity_ = bytes_ = 0;
 }
 
+// A free array keeps the link to the next free array of its class in its first bytes, copied in
+// and out with memcpy (the memory held cells before).
 Cell* CellPool::allocate(int size_class) {
-  FreeArray*& head = free_[static_cast<std::size_t>(size_class)];
+  void*& head = free_[static_cast<std::size_t>(size_class)];
   if (head != nullptr) {
-    FreeArray* a = head;
-    head = a->next;
-    return reinterpret_cast<Cell*>(a);
+    void* const a = head;
+    std::memcpy(&head, a, sizeof head);
+    return static_cast<Cell*>(a);
   }
   return static_cast<Cell*>(arena_.allocate(sizeof(Cell) << size_class, alignof(Cell)));
 }
 
 void CellPool::free(Cell* cells, int size_class) noexcept {
-  auto* a = reinterpret_cast<FreeArray*>(cells);
-  a->next = free_[static_cast<std::size_t>(size_class)];
-  free_[static_cast<std::size_t>(size_class)] = a;
+  void*& head = free_[static_cast<std::size_t>(size_class)];
+  std::memcpy(static_cast<void*>(cells), &head, sizeof head);
+  head = cells;
 }
 
 void BlockGrid::add_cells(VoxelBlock& b, std::uint64_t added) {
@@ -130,7 +132,7 @@ void BlockGrid::add_cells(VoxelBlock& b, std::uint64_t added) {
   }
   int at = old_count;
   for (std::uint64_t m = added; m != 0; m &= m - 1) {
-    b.cells[at] = Cell{};
+    new (&b.cells[at]) Cell{};
     b.position[static_cast<std::size_t>(__builtin_ctzll(m))] = static_cast<std::uint8_t>(at);
     ++at;
   }
@@ -171,7 +173,7 @@ std::size_t BlockGrid::prune() {
     int r = 0;
     for (std::uint64_t m = mask; m != 0; m &= m - 1, ++r) {
       const auto c = static_cast<std::size_t>(__builtin_ctzll(m));
-      copy->cells[r] = b->cells[b->position[c]];
+      new (&copy->cells[r]) Cell(b->cells[b->position[c]]);
       copy->position[c] = static_cast<std::uint8_t>(r);
     }
     cells += static_cast<std::size_t>(n);
@@ -195,7 +197,7 @@ void BlockGrid::clear() {
   cells_pool_ = std::make_unique<CellPool>();
   index_.reset();
   cells_ = 0;
-  recent_->fill(nullptr);
+  recent_ = std::make_unique<std::array<VoxelBlock*, std::size_t{1} << kRecentBits>>();  // also after a move
 }
 
 }  // namespace iwlomap::detail

@@ -99,7 +99,7 @@ struct alignas(64) Cell {
 };
 static_assert(sizeof(Cell) == 64, "a cell is one cache line");
 
-/// An 8^3 block: a header of 96 bytes; its cells live in one array owned by the grid's CellPool,
+/// An 8^3 block: a header of 104 bytes; its cells live in one array owned by the grid's CellPool,
 /// in the order they were allocated, and a table gives each cell's position.
 struct VoxelBlock {
   explicit VoxelBlock(const VoxelKey& k) : key(k) {}
@@ -212,11 +212,8 @@ class CellPool {
   [[nodiscard]] std::size_t bytes() const noexcept { return arena_.bytes(); }
 
  private:
-  struct FreeArray {
-    FreeArray* next;
-  };
   SlabArena arena_;
-  std::array<FreeArray*, kClasses> free_{};
+  std::array<void*, kClasses> free_{};  // heads of the lists of free arrays, by class
 };
 
 class BlockGrid {
@@ -265,7 +262,8 @@ class BlockGrid {
   [[nodiscard]] std::size_t num_slots() const noexcept { return cells_ * kCellVoxels; }
 
   /// Drops blocks and cells without known voxels (copying the rest into fresh slabs, so the
-  /// memory is given back) and shrinks the index to fit; returns the voxel slots freed.
+  /// memory is given back, to the slab cache or the system) and shrinks the index to fit;
+  /// returns the voxel slots freed.
   std::size_t prune();
 
   void clear();
