@@ -599,34 +599,30 @@ struct OutofcoreTileMapper::Impl {
     ++total_known;
   }
 
-  // Resolves the voxel of an observation for the update pass: its block and cell are allocated
-  // now, its address is taken only in the update pass (adding a cell may move the block's cells).
-  static std::pair<detail::VoxelBlock*, int> resolve(detail::BlockAccessor& acc, detail::BlockGrid& grid,
-                                                     const VoxelKey& key) {
-    detail::VoxelBlock& b = acc.block(detail::block_of(key));
-    const int index = detail::index_in_block(key);
-    grid.ensure_cells(b, std::uint64_t{1} << (index >> 3));
-    return {&b, index};
-  }
-  detail::Voxel& target_voxel(std::size_t i) { return targets[i].first->existing(targets[i].second); }
-
-  // The observations order[from, to) of the batch, all in tile \p t, in order. Two passes as in
-  // the RAM backend: resolve every voxel (allocating blocks and cells), then update with the voxel
-  // of a later observation prefetched.
-  void apply_observations(const detail::BatchValues& in, Tile& t, std::size_t from, std::size_t to) {
-    detail::BlockAccessor acc(t.grid);
-    targets.resize(to - from);
-    for (std::size_t j = from; j < to; ++j) targets[j - from] = resolve(acc, t.grid, batch[routing.order[j]].key);
-    constexpr std::size_t kAhead = 16;
-    const std::size_t n = to - from;
+  // Applies n observations of the batch, the j-th being batch[index_of(j)] in tile tile_of(j),
+  // reached through accessor_of(j). Two passes as in the RAM backend: resolve every voxel
+  // (allocating blocks and cells; addresses are taken only in the update pass, as adding a cell
+  // may move its block's cells), then update with the voxel of a later observation prefetched.
+  template <class IndexOf, class TileOf, class AccessorOf>
+  void apply_observations(const detail::BatchValues& in, std::size_t n, IndexOf index_of, TileOf tile_of,
+                          AccessorOf accessor_of) {
+    targets.resize(n);
     for (std::size_t j = 0; j < n; ++j) {
-      if (j + kAhead < n) __builtin_prefetch(&target_voxel(j + kAhead), 1);
-      const detail::Observation& o = batch[routing.order[from + j]];
-      if (detail::observe_voxel(*targets[j].first, target_voxel(j), in.intensity(o.row), in.occupied_flag(o.row), in.weight(o.row),
-                                updater))
-        count_new(t);
+      const VoxelKey& key = batch[index_of(j)].key;
+      detail::VoxelBlock& b = accessor_of(j).block(detail::block_of(key));
+      const int index = detail::index_in_block(key);
+      tile_of(j).grid.ensure_cells(b, std::uint64_t{1} << (index >> 3));
+      targets[j] = {&b, index};
     }
-    t.dirty = true;
+    const auto voxel = [this](std::size_t j) -> detail::Voxel& { return targets[j].first->existing(targets[j].second); };
+    constexpr std::size_t kAhead = 16;
+    for (std::size_t j = 0; j < n; ++j) {
+      if (j + kAhead < n) __builtin_prefetch(&voxel(j + kAhead), 1);
+      const std::uint32_t row = batch[index_of(j)].row;
+      if (detail::observe_voxel(*targets[j].first, voxel(j), in.intensity(row), in.occupied_flag(row), in.weight(row),
+                                updater))
+        count_new(tile_of(j));
+    }
   }
 
   void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
@@ -639,8 +635,15 @@ struct OutofcoreTileMapper::Impl {
     } else {
       sort_by_slot(batch.size());
       for_each_group([&](const std::uint32_t* slots, Tile* const* group, std::size_t count) {
-        for (std::size_t g = 0; g < count; ++g)
-          apply_observations(in, *group[g], routing.begin[slots[g]], routing.begin[slots[g] + 1]);
+        for (std::size_t g = 0; g < count; ++g) {
+          Tile& t = *group[g];
+          detail::BlockAccessor acc(t.grid);
+          const std::size_t from = routing.begin[slots[g]];
+          apply_observations(
+              in, routing.begin[slots[g] + 1] - from, [&](std::size_t j) { return routing.order[from + j]; },
+              [&](std::size_t) -> Tile& { return t; }, [&](std::size_t) -> detail::BlockAccessor& { return acc; });
+          t.dirty = true;
+        }
       });
     }
     skipped += skip;
@@ -654,18 +657,10 @@ struct OutofcoreTileMapper::Impl {
     make_resident(routing.slot_tiles, slot_tile);
     accessors.clear();
     for (Tile* t : slot_tile) accessors.emplace_back(t->grid);
-    const std::size_t n = batch.size();
-    targets.resize(n);
-    for (std::size_t i = 0; i < n; ++i)
-      targets[i] = resolve(accessors[routing.slot_of[i]], slot_tile[routing.slot_of[i]]->grid, batch[i].key);
-    constexpr std::size_t kAhead = 16;
-    for (std::size_t i = 0; i < n; ++i) {
-      if (i + kAhead < n) __builtin_prefetch(&target_voxel(i + kAhead), 1);
-      const detail::Observation& o = batch[i];
-      if (detail::observe_voxel(*targets[i].first, target_voxel(i), in.intensity(o.row), in.occupied_flag(o.row), in.weight(o.row),
-                                updater))
-        count_new(*slot_tile[routing.slot_of[i]]);
-    }
+    apply_observations(
+        in, batch.size(), [](std::size_t i) { return i; },
+        [&](std::size_t i) -> Tile& { return *slot_tile[routing.slot_of[i]]; },
+        [&](std::size_t i) -> detail::BlockAccessor& { return accessors[routing.slot_of[i]]; });
     for (Tile* t : slot_tile) t->dirty = true;
   }
 
