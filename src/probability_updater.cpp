@@ -62,11 +62,7 @@ struct ProbabilityUpdater::Impl {
         // scan's rows change block every two or three rows, and that branch mispredicted.
         detail::VoxelBlock& b = grid.get_or_create(detail::block_of(key));
         const int index = detail::index_in_block(key);
-        const std::uint64_t cell = std::uint64_t{1} << (index >> 3);
-        if ((b.cell_mask & cell) == 0) {
-          grid.ensure_cells(b, cell);
-          moved = true;
-        }
+        if (grid.ensure_cells(b, std::uint64_t{1} << (index >> 3))) moved = true;
         chunk[count++] = {&b, &b.existing(index), index, static_cast<std::uint32_t>(i)};
       }
       // A cell added to a block may have moved the block's cells: take the addresses again.

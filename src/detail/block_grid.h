@@ -107,7 +107,8 @@ struct VoxelBlock {
   std::uint32_t known = 0;       // voxels with count > 0
   std::uint64_t cell_mask = 0;   // bit c: cell c is allocated
   Cell* cells = nullptr;         // the allocated cells, popcount(cell_mask) of them
-  std::uint8_t count = 0;        // allocated cells
+  std::uint8_t count = 0;        // allocated cells: popcount(cell_mask), kept because counting on
+                                 // every insertion made filling an empty map 4% slower
   std::array<std::uint8_t, kBlockCells> position{};  // of cell c in `cells`, when allocated
 
   [[nodiscard]] int num_cells() const noexcept { return count; }
@@ -240,10 +241,13 @@ class BlockGrid {
     return *cached;
   }
 
-  /// Allocates the cells of \p mask that \p b lacks (zero-filled). When b's array grows, its
-  /// cells move: a Voxel pointer or reference into b taken before may be invalid afterwards.
-  void ensure_cells(VoxelBlock& b, std::uint64_t mask) {
-    if ((mask & ~b.cell_mask) != 0) add_cells(b, mask & ~b.cell_mask);
+  /// Allocates the cells of \p mask that \p b lacks (zero-filled); returns whether there were
+  /// any. When b's array grows, its cells move: a Voxel pointer or reference into b taken before
+  /// may be invalid afterwards.
+  bool ensure_cells(VoxelBlock& b, std::uint64_t mask) {
+    if ((mask & ~b.cell_mask) == 0) return false;
+    add_cells(b, mask & ~b.cell_mask);
+    return true;
   }
 
   /// Voxel \p index of \p b, allocating its cell if needed (which may move b's other cells).
