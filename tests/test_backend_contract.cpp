@@ -40,6 +40,7 @@
 namespace iwlomap {
 namespace {
 
+using test_support::Batch;
 using test_support::Snapshot;
 using test_support::TempDir;
 using test_support::snapshot;
@@ -160,31 +161,9 @@ void expect_same_map(IMapperBackend& got, IMapperBackend& want) {
   }
 }
 
-struct Batch {
-  Eigen::MatrixXd points;
-  Eigen::VectorXd intensities;
-  std::vector<bool> flags;
-  Eigen::VectorXd weights;
-};
-
-// Points in a small box (so voxels repeat, within and across batches), integer and fractional
-// intensities around the threshold, a few non-finite rows, weights including 0.
+// Points in a small box around the origin, with NaN and infinite coordinates and NaN intensities.
 Batch random_batch(std::mt19937& rng, int n, double half_extent) {
-  std::uniform_real_distribution<double> coord(-half_extent, half_extent);
-  std::uniform_real_distribution<double> unit(0.0, 1.0);
-  std::uniform_int_distribution<int> int_intensity(0, 255);
-  Batch b{Eigen::MatrixXd(n, 3), Eigen::VectorXd(n), std::vector<bool>(static_cast<std::size_t>(n)),
-          Eigen::VectorXd(n)};
-  for (int i = 0; i < n; ++i) {
-    b.points.row(i) << coord(rng), coord(rng), coord(rng);
-    b.intensities[i] = unit(rng) < 0.5 ? static_cast<double>(int_intensity(rng)) : 255.0 * unit(rng);
-    b.flags[static_cast<std::size_t>(i)] = unit(rng) < 0.6;
-    const double u = unit(rng);
-    b.weights[i] = u < 0.1 ? 0.0 : 2.0 * unit(rng);
-    if (unit(rng) < 0.01) b.points(i, static_cast<Eigen::Index>(i % 3)) = i % 2 == 0 ? kNaN : kInf;
-    if (unit(rng) < 0.005) b.intensities[i] = kNaN;
-  }
-  return b;
+  return test_support::random_batch(rng, n, half_extent, Eigen::Vector3d::Zero(), test_support::BadRows::kNaNInfAndIntensity);
 }
 
 // ---- the suite ----
