@@ -47,17 +47,14 @@ struct ProbabilityUpdater::Impl {
       const Eigen::Index end = std::min<Eigen::Index>(n, begin + kChunkRows);
       std::size_t count = 0;
       bool moved = false;  // some cell was added in this chunk
-      const auto rows = static_cast<std::size_t>(end - begin);
-      for (int c = 0; c < 3; ++c)
-        divide.floor_many(points.col(c).data() + begin, rows, keys[static_cast<std::size_t>(c)].data(), flags.data());
+      keys.compute(points, begin, static_cast<std::size_t>(end - begin), divide);
       for (Eigen::Index i = begin; i < end; ++i) {
         const auto r = static_cast<std::size_t>(i - begin);
         if (skip != 0 && !detail::row_is_finite(points, intensities, i)) {
           ++skipped;  // counted chunk by chunk, so that the count matches the rows applied
           continue;
         }
-        const VoxelKey key{static_cast<std::int32_t>(keys[0][r]), static_cast<std::int32_t>(keys[1][r]),
-                           static_cast<std::int32_t>(keys[2][r])};
+        const VoxelKey key = keys[r];
         // Straight to the grid's cache of recent blocks, not through a last-block accessor: a
         // scan's rows change block every two or three rows, and that branch mispredicted.
         detail::VoxelBlock& b = grid.get_or_create(detail::block_of(key));
@@ -89,10 +86,9 @@ struct ProbabilityUpdater::Impl {
     int index;             // index_in_block()
     std::uint32_t row;  // in the batch
   };
-  static constexpr Eigen::Index kChunkRows = 512;
+  static constexpr Eigen::Index kChunkRows = detail::ChunkKeys::kRows;
   std::array<Target, kChunkRows> chunk;  // one chunk of a batch, resolved
-  std::array<std::array<std::int64_t, kChunkRows>, 3> keys;  // x, y, z keys of the chunk's rows (low 32 bits)
-  std::array<std::int64_t, kChunkRows> flags;                // scratch of FloorDivider::floor_many()
+  detail::ChunkKeys keys;  // of the chunk's rows
   std::size_t known = 0;
   std::size_t skipped = 0;
   std::unique_ptr<detail::HitAccumulator> hits;  // null while hit accumulation is off

@@ -1,10 +1,12 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "detail/batch_input.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <memory>
 #include <sstream>
 #include <stdexcept>
 
@@ -135,12 +137,18 @@ std::size_t prepare_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& 
   // it made every point wait for a store-forwarding stall (three narrow stores, one wide load).
   out.resize(static_cast<std::size_t>(n) - skipped);
   const FloorDivider divide(resolution);
+  const auto keys = std::make_unique<ChunkKeys>();
   std::size_t kept = 0;
-  for (Eigen::Index i = 0; i < n; ++i) {
-    if (!row_is_finite(points, intensities, i)) continue;
-    Observation& o = out[kept++];
-    o.key = key_of_row(points, i, divide);
-    o.row = static_cast<std::uint32_t>(i);
+  for (Eigen::Index begin = 0; begin < n; begin += static_cast<Eigen::Index>(ChunkKeys::kRows)) {
+    const auto rows = static_cast<std::size_t>(std::min<Eigen::Index>(n - begin, ChunkKeys::kRows));
+    keys->compute(points, begin, rows, divide);
+    for (std::size_t r = 0; r < rows; ++r) {
+      const Eigen::Index i = begin + static_cast<Eigen::Index>(r);
+      if (skipped != 0 && !row_is_finite(points, intensities, i)) continue;
+      Observation& o = out[kept++];
+      o.key = (*keys)[r];
+      o.row = static_cast<std::uint32_t>(i);
+    }
   }
   return skipped;
 }

@@ -8,6 +8,7 @@
 
 #include <Eigen/Core>
 
+#include <array>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -110,11 +111,28 @@ class FloorDivider {
          std::isfinite(intensities[i]);
 }
 
-/// The key of row \p i of a batch that validate_batch() accepted (so the key fits in int32).
-[[nodiscard]] inline VoxelKey key_of_row(const Eigen::MatrixXd& points, Eigen::Index i, const FloorDivider& divide) {
-  return {static_cast<std::int32_t>(divide(points(i, 0))), static_cast<std::int32_t>(divide(points(i, 1))),
-          static_cast<std::int32_t>(divide(points(i, 2)))};
-}
+/// The keys of a chunk of up to kRows consecutive rows of a batch that validate_batch() accepted,
+/// computed with FloorDivider::floor_many() axis by axis: the one way every backend turns batch
+/// points into keys.
+class ChunkKeys {
+ public:
+  static constexpr std::size_t kRows = 512;
+
+  /// Keys of rows [begin, begin + rows), rows <= kRows.
+  void compute(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide) {
+    for (std::size_t c = 0; c < 3; ++c)
+      divide.floor_many(points.col(static_cast<Eigen::Index>(c)).data() + begin, rows, axis_[c].data(), flags_.data());
+  }
+  /// The key of row begin + r (meaningful for finite rows only).
+  [[nodiscard]] VoxelKey operator[](std::size_t r) const {
+    return {static_cast<std::int32_t>(axis_[0][r]), static_cast<std::int32_t>(axis_[1][r]),
+            static_cast<std::int32_t>(axis_[2][r])};
+  }
+
+ private:
+  std::array<std::array<std::int64_t, kRows>, 3> axis_;  // keys in the low 32 bits
+  std::array<std::int64_t, kRows> flags_;                // scratch of floor_many()
+};
 
 /// Throws std::invalid_argument unless resolution is finite and > 0.
 void check_resolution(double resolution);
