@@ -110,6 +110,8 @@ Updater::Updater(const IwloParams& params) : p_(params) {
   const double inf = std::numeric_limits<double>::infinity();
   occupied_fast_from_ = p_.adaptive_enabled ? log_odds(p_.adaptive_threshold) + kMargin : -inf;
   free_fast_to_ = p_.adaptive_enabled ? log_odds(1.0 - p_.adaptive_threshold) - kMargin : inf;
+  // The scale at L = 0, where probability() is exactly 0.5 (exp(-0) = 1): every new voxel's.
+  scale_at_zero_ = {adaptive_scale(0.5, false, p_), adaptive_scale(0.5, true, p_)};
   // Learning rates until they reach the floor (at most 4096 entries; beyond, computed).
   constexpr std::uint32_t kMaxTable = 4096;
   for (std::uint32_t n = 1; n <= kMaxTable; ++n) {

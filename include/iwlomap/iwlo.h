@@ -103,6 +103,7 @@ class Updater {
   std::array<double, 256> integer_weight_{};   // intensity_weight(I) for I = 0..255
   double occupied_fast_from_;  // L at or above this: P >= P_th for certain, occupied scale is 1
   double free_fast_to_;        // L at or below this: P <= 1 - P_th for certain, free scale is 1
+  std::array<double, 2> scale_at_zero_{};  // adaptive_scale(0.5, occupied) for occupied = false, true
 };
 
 /// Applies one observation to a stored voxel state in place: increments the count (saturating),

@@ -21,11 +21,11 @@ struct UpdaterKernel {
     const IwloParams& p = u.p_;
     const bool occupied = occupied_flag && intensity > p.intensity_threshold;  // is_occupied_observation()
     const bool unit_scale = occupied ? log_odds_value >= u.occupied_fast_from_ : log_odds_value <= u.free_fast_to_;
-    // A voxel's first observation finds L = 0, where probability() is exactly 0.5 (exp(-0) = 1):
-    // every new voxel skips the exp() that way.
-    const double s = unit_scale ? 1.0
-                                : iwlo::adaptive_scale(log_odds_value == 0.0 ? 0.5 : iwlo::probability(log_odds_value),
-                                                       occupied, p);
+    // A voxel's first observation finds L = 0, whose scale is precomputed: every new voxel skips
+    // the exp() and the call that way.
+    const double s = unit_scale                ? 1.0
+                     : log_odds_value == 0.0 ? u.scale_at_zero_[occupied ? 1 : 0]
+                                             : iwlo::adaptive_scale(iwlo::probability(log_odds_value), occupied, p);
     const std::size_t n = count == 0 ? 1 : count;
     const double alpha = n <= u.alpha_.size() ? u.alpha_[n - 1]
                          : (u.alpha_.back() == p.min_alpha ? p.min_alpha : iwlo::learning_rate(count, p));
