@@ -30,13 +30,15 @@ struct ProbabilityUpdater::Impl {
   }
 
   // The batch is validated first (nothing changes when it throws for its input), then applied in
-  // chunks of rows, each in two passes: resolve every row's voxel (allocating blocks and cells),
-  // then update with the voxel of a later row prefetched, which hides most cache misses on large
-  // maps. When a cell was added during the first pass, the voxel addresses are taken again before
-  // the second (adding a cell may move its block's cells). A chunk's targets stay in L1;
-  // converting whole batches first (40-byte observations, 16-byte targets) cost a write and a
-  // read of 56 bytes a row. The price: when memory runs out (std::bad_alloc) the chunks before the
-  // failing one stay applied; the map stays consistent (voxel states, counts, skipped rows).
+  // chunks of rows. For each chunk: keys, blocks and in-block indices in one vectorised pass;
+  // then every row's block (allocating new blocks), noting in the block the cells it lacks; then
+  // those cells, allocated once per block and chunk (allocating each cell as its row came took
+  // 35,865 calls instead of 11,023 for the synthetic scan's batch into an empty map, and 1.2x
+  // the time to fill it); then the updates, with the voxel of a later row prefetched, which
+  // hides most cache misses on large maps. A chunk's targets stay in L1; converting whole batches
+  // first (40-byte observations, 16-byte targets) cost a write and a read of 56 bytes a row. The
+  // price: when memory runs out (std::bad_alloc) the chunks before the failing one stay applied;
+  // the map stays consistent (voxel states, counts, skipped rows).
   void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                    const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights) {
     const std::size_t skip = detail::validate_batch(points, intensities, is_occupied, weights, resolution);
@@ -46,31 +48,57 @@ struct ProbabilityUpdater::Impl {
     for (Eigen::Index begin = 0; begin < n; begin += kChunkRows) {
       const Eigen::Index end = std::min<Eigen::Index>(n, begin + kChunkRows);
       std::size_t count = 0;
-      bool moved = false;  // some cell was added in this chunk
-      keys.compute(points, begin, static_cast<std::size_t>(end - begin), divide);
+      std::size_t num_blocks = 0;  // blocks with cells to add, in `blocks`
+      keys.compute_blocks(points, begin, static_cast<std::size_t>(end - begin), divide);
       for (Eigen::Index i = begin; i < end; ++i) {
         const auto r = static_cast<std::size_t>(i - begin);
         if (skip != 0 && !detail::row_is_finite(points, intensities, i)) {
           ++skipped;  // counted chunk by chunk, so that the count matches the rows applied
           continue;
         }
-        const VoxelKey key = keys[r];
         // Straight to the grid's cache of recent blocks, not through a last-block accessor: a
         // scan's rows change block every two or three rows, and that branch mispredicted.
-        detail::VoxelBlock& b = grid.get_or_create(detail::block_of(key));
-        const int index = detail::index_in_block(key);
-        if (grid.ensure_cells(b, std::uint64_t{1} << (index >> 3))) moved = true;
-        chunk[count++] = {&b, &b.existing(index), index, static_cast<std::uint32_t>(i)};
+        detail::VoxelBlock& b = grid.get_or_create(keys.block(r), keys.slot(r));
+        const int index = keys.index(r);
+        const std::uint64_t missing = (std::uint64_t{1} << (index >> 3)) & ~b.cell_mask;
+        detail::Voxel* v = nullptr;
+        if (missing != 0) {
+          const std::uint64_t before = b.pending;
+          b.pending = before | missing;
+          blocks[num_blocks] = &b;
+          num_blocks += before == 0 ? 1 : 0;  // the block's first missing cell
+        } else {
+          v = &b.existing(index);
+        }
+        chunk[count++] = {&b, v, index, static_cast<std::uint32_t>(i)};
       }
-      // A cell added to a block may have moved the block's cells: take the addresses again.
-      if (moved)
+      if (num_blocks != 0) {
+        allocate_pending(num_blocks);
+        // Adding cells to a block may have moved its cells: take every address again.
         for (std::size_t j = 0; j < count; ++j) chunk[j].voxel = &chunk[j].block->existing(chunk[j].index);
+      }
       constexpr std::size_t kAhead = 16;
       for (std::size_t j = 0; j < count; ++j) {
         if (j + kAhead < count) __builtin_prefetch(chunk[j + kAhead].voxel, 1);
         const Target& t = chunk[j];
         apply_voxel(*t.block, *t.voxel, in.intensity(t.row), in.occupied_flag(t.row), in.weight(t.row));
       }
+    }
+  }
+
+  // Allocates the cells the first \p num_blocks entries of `blocks` noted as pending and clears
+  // their notes, also when an allocation fails.
+  void allocate_pending(std::size_t num_blocks) {
+    std::size_t d = 0;
+    try {
+      for (; d < num_blocks; ++d) {
+        detail::VoxelBlock& b = *blocks[d];
+        grid.ensure_cells(b, b.pending);
+        b.pending = 0;
+      }
+    } catch (...) {
+      for (; d < num_blocks; ++d) blocks[d]->pending = 0;
+      throw;
     }
   }
 
@@ -82,12 +110,13 @@ struct ProbabilityUpdater::Impl {
   detail::ScanScratch scratch;
   struct Target {
     detail::VoxelBlock* block;
-    detail::Voxel* voxel;  // valid once the chunk's cells are all allocated
+    detail::Voxel* voxel;  // set once the chunk's cells are all allocated
     int index;             // index_in_block()
     std::uint32_t row;  // in the batch
   };
   static constexpr Eigen::Index kChunkRows = detail::ChunkKeys::kRows;
   std::array<Target, kChunkRows> chunk;  // one chunk of a batch, resolved
+  std::array<detail::VoxelBlock*, kChunkRows> blocks;  // the chunk's distinct blocks
   detail::ChunkKeys keys;  // of the chunk's rows
   std::size_t known = 0;
   std::size_t skipped = 0;

@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "detail/batch_input.h"
 
+#include "detail/block_grid.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -57,6 +59,7 @@ std::int64_t bits_of(double d) {
 // +0 (all bits clear) for a finite x and NaN otherwise; |x| - safe is negative (sign bit set)
 // inside the range; a weight w is fine when w - w is +0 and the sign bit of w is clear (-0 is
 // fine too, but goes the slow way).
+IWLOMAP_AVX2_CLONE
 bool all_rows_plain(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities, const Eigen::VectorXd* weights,
                     double safe) {
   const Eigen::Index n = points.rows();
@@ -81,6 +84,27 @@ bool all_rows_plain(const Eigen::MatrixXd& points, const Eigen::VectorXd& intens
 }
 
 }  // namespace
+
+IWLOMAP_AVX2_CLONE
+void ChunkKeys::compute(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide) {
+  for (std::size_t c = 0; c < 3; ++c)
+    divide.floor_many(points.col(static_cast<Eigen::Index>(c)).data() + begin, rows, axis_[c].data(), flags_.data());
+}
+
+IWLOMAP_AVX2_CLONE
+void ChunkKeys::compute_blocks(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide) {
+  compute(points, begin, rows, divide);
+  for (std::size_t r = 0; r < rows; ++r) {
+    const VoxelKey k{static_cast<std::int32_t>(axis_[0][r]), static_cast<std::int32_t>(axis_[1][r]),
+                     static_cast<std::int32_t>(axis_[2][r])};
+    const VoxelKey b = block_of(k);
+    block_[0][r] = b.x;
+    block_[1][r] = b.y;
+    block_[2][r] = b.z;
+    index_[r] = index_in_block(k);
+    slot_[r] = static_cast<std::uint32_t>(BlockGrid::recent_slot(b));
+  }
+}
 
 void throw_out_of_range(Eigen::Index i, const Eigen::Vector3d& p, double resolution) {
   std::ostringstream s;

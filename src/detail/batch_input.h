@@ -18,6 +18,14 @@
 
 namespace iwlomap::detail {
 
+// Functions with a second copy compiled for AVX2, chosen at load time on x86-64 (GCC and Clang
+// build both and the loader picks by CPU); the loops they hold vectorise twice as wide.
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define IWLOMAP_AVX2_CLONE __attribute__((target_clones("avx2", "default")))
+#else
+#define IWLOMAP_AVX2_CLONE
+#endif
+
 /// One observation of a batch, ready to apply: its voxel and its row in the input, where the
 /// intensity, flag and weight stay (16 bytes instead of 40: a batch's observations are written
 /// once and read once, and for large batches that traffic was a third of the update).
@@ -119,19 +127,26 @@ class ChunkKeys {
   static constexpr std::size_t kRows = 512;
 
   /// Keys of rows [begin, begin + rows), rows <= kRows.
-  void compute(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide) {
-    for (std::size_t c = 0; c < 3; ++c)
-      divide.floor_many(points.col(static_cast<Eigen::Index>(c)).data() + begin, rows, axis_[c].data(), flags_.data());
-  }
+  void compute(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide);
+  /// compute(), and also every row's block, index in its block and slot of the block grid's
+  /// cache of recent blocks, in one vectorised pass (for the RAM backend's block grid).
+  void compute_blocks(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide);
   /// The key of row begin + r (meaningful for finite rows only).
   [[nodiscard]] VoxelKey operator[](std::size_t r) const {
     return {static_cast<std::int32_t>(axis_[0][r]), static_cast<std::int32_t>(axis_[1][r]),
             static_cast<std::int32_t>(axis_[2][r])};
   }
+  /// After compute_blocks(): row begin + r's block, index in it and recent-block slot.
+  [[nodiscard]] VoxelKey block(std::size_t r) const { return {block_[0][r], block_[1][r], block_[2][r]}; }
+  [[nodiscard]] int index(std::size_t r) const { return index_[r]; }
+  [[nodiscard]] std::uint32_t slot(std::size_t r) const { return slot_[r]; }
 
  private:
   std::array<std::array<std::int64_t, kRows>, 3> axis_;  // keys in the low 32 bits
   std::array<std::int64_t, kRows> flags_;                // scratch of floor_many()
+  std::array<std::array<std::int32_t, kRows>, 3> block_;
+  std::array<std::int32_t, kRows> index_;
+  std::array<std::uint32_t, kRows> slot_;
 };
 
 /// Throws std::invalid_argument unless resolution is finite and > 0.

@@ -78,17 +78,14 @@ void unmap_slab(void* p, std::size_t size) noexcept {
 
 }  // namespace
 
-void* SlabArena::allocate(std::size_t size, std::size_t align) {
-  std::size_t at = (used_ + align - 1) & ~(align - 1);
-  if (slabs_.empty() || at + size > capacity_) {
-    const std::size_t slab = slabs_.empty() ? kFirstSlab : std::min(kLargestSlab, slabs_.back().size * 2);
-    slabs_.push_back({map_slab(slab), slab});
-    bytes_ += slab;
-    capacity_ = slab;
-    at = 0;
-  }
-  used_ = at + size;
-  return static_cast<char*>(slabs_.back().memory) + at;
+void* SlabArena::allocate_in_new_slab(std::size_t size) {
+  const std::size_t slab = slabs_.empty() ? kFirstSlab : std::min(kLargestSlab, slabs_.back().size * 2);
+  if (slabs_.size() == slabs_.capacity()) slabs_.reserve(2 * slabs_.size() + 8);  // a failing push_back would lose the slab
+  slabs_.push_back({map_slab(slab), slab});
+  bytes_ += slab;
+  capacity_ = slab;
+  used_ = size;
+  return slabs_.back().memory;
 }
 
 void SlabArena::release() noexcept {
@@ -97,28 +94,10 @@ void SlabArena::release() noexcept {
   used_ = capacity_ = bytes_ = 0;
 }
 
-// A free array keeps the link to the next free array of its class in its first bytes, copied in
-// and out with memcpy (the memory held cells before).
-Cell* CellPool::allocate(int size_class) {
-  void*& head = free_[static_cast<std::size_t>(size_class)];
-  if (head != nullptr) {
-    void* const a = head;
-    std::memcpy(&head, a, sizeof head);
-    return static_cast<Cell*>(a);
-  }
-  return static_cast<Cell*>(arena_.allocate(sizeof(Cell) << size_class, alignof(Cell)));
-}
-
-void CellPool::free(Cell* cells, int size_class) noexcept {
-  void*& head = free_[static_cast<std::size_t>(size_class)];
-  std::memcpy(static_cast<void*>(cells), &head, sizeof head);
-  head = cells;
-}
-
 void BlockGrid::add_cells(VoxelBlock& b, std::uint64_t added) {
   // New cells go to the end of the block's array, so no cell ever moves within it; the array
   // doubles when full (one copy of the cells, amortised below one per added cell).
-  const int old_count = b.count;
+  const int old_count = b.num_cells();
   const int count = old_count + popcount64(added);
   const int old_class = CellPool::class_of(old_count);
   const int new_class = CellPool::class_of(count);
@@ -137,7 +116,6 @@ void BlockGrid::add_cells(VoxelBlock& b, std::uint64_t added) {
     ++at;
   }
   b.cell_mask |= added;
-  b.count = static_cast<std::uint8_t>(count);
   cells_ += static_cast<std::size_t>(count - old_count);
 }
 
@@ -168,7 +146,6 @@ std::size_t BlockGrid::prune() {
     copy->known = b->known;
     copy->cell_mask = mask;
     const int n = popcount64(mask);
-    copy->count = static_cast<std::uint8_t>(n);
     copy->cells = pool->allocate(CellPool::class_of(n));
     int r = 0;
     for (std::uint64_t m = mask; m != 0; m &= m - 1, ++r) {

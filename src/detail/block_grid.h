@@ -29,6 +29,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <memory>
 #include <new>
 #include <type_traits>
@@ -107,11 +108,10 @@ struct VoxelBlock {
   std::uint32_t known = 0;       // voxels with count > 0
   std::uint64_t cell_mask = 0;   // bit c: cell c is allocated
   Cell* cells = nullptr;         // the allocated cells, popcount(cell_mask) of them
-  std::uint8_t count = 0;        // allocated cells: popcount(cell_mask), kept because counting on
-                                 // every insertion made filling an empty map 4% slower
+  std::uint64_t pending = 0;     // cells a batch in progress needs (RAM backend); 0 between calls
   std::array<std::uint8_t, kBlockCells> position{};  // of cell c in `cells`, when allocated
 
-  [[nodiscard]] int num_cells() const noexcept { return count; }
+  [[nodiscard]] int num_cells() const noexcept { return popcount64(cell_mask); }
   [[nodiscard]] bool has_cell(int cell) const noexcept { return ((cell_mask >> cell) & 1u) != 0; }
   /// The voxel at \p index; its cell must be allocated.
   [[nodiscard]] Voxel& existing(int index) noexcept {
@@ -183,7 +183,12 @@ class SlabArena {
 
   /// \p size bytes (at most 4 KiB) aligned to \p align (a power of two, at most 64); zero-filled
   /// when fresh from the kernel, but callers must not rely on it.
-  void* allocate(std::size_t size, std::size_t align);
+  void* allocate(std::size_t size, std::size_t align) {
+    const std::size_t at = (used_ + align - 1) & ~(align - 1);
+    if (at + size > capacity_) return allocate_in_new_slab(size);
+    used_ = at + size;
+    return static_cast<char*>(slabs_.back().memory) + at;
+  }
   void release() noexcept;
   [[nodiscard]] std::size_t bytes() const noexcept { return bytes_; }
 
@@ -192,6 +197,8 @@ class SlabArena {
     void* memory;
     std::size_t size;
   };
+  void* allocate_in_new_slab(std::size_t size);
+
   std::vector<Slab> slabs_;
   std::size_t used_ = 0;      // bytes used in the last slab
   std::size_t capacity_ = 0;  // bytes in the last slab
@@ -208,8 +215,22 @@ class CellPool {
   [[nodiscard]] static int class_of(int cells) noexcept {  // smallest class holding \p cells (>= 1)
     return cells <= 1 ? 0 : 32 - __builtin_clz(static_cast<unsigned>(cells - 1));
   }
-  Cell* allocate(int size_class);
-  void free(Cell* cells, int size_class) noexcept;
+  // A free array keeps the link to the next free array of its class in its first bytes, copied in
+  // and out with memcpy (the memory held cells before).
+  Cell* allocate(int size_class) {
+    void*& head = free_[static_cast<std::size_t>(size_class)];
+    if (head != nullptr) {
+      void* const a = head;
+      std::memcpy(&head, a, sizeof head);
+      return static_cast<Cell*>(a);
+    }
+    return static_cast<Cell*>(arena_.allocate(sizeof(Cell) << size_class, alignof(Cell)));
+  }
+  void free(Cell* cells, int size_class) noexcept {
+    void*& head = free_[static_cast<std::size_t>(size_class)];
+    std::memcpy(static_cast<void*>(cells), &head, sizeof head);
+    head = cells;
+  }
   [[nodiscard]] std::size_t bytes() const noexcept { return arena_.bytes(); }
 
  private:
@@ -231,14 +252,21 @@ class BlockGrid {
     return i == FlatKeyMap::kEmpty ? nullptr : blocks_[i];
   }
 
-  VoxelBlock& get_or_create(const VoxelKey& block_key) {
-    VoxelBlock*& cached = (*recent_)[recent_slot(block_key)];
+  VoxelBlock& get_or_create(const VoxelKey& block_key) { return get_or_create(block_key, recent_slot(block_key)); }
+  /// get_or_create() for a block whose recent_slot() is known.
+  VoxelBlock& get_or_create(const VoxelKey& block_key, std::size_t slot) {
+    VoxelBlock*& cached = (*recent_)[slot];
     if (cached != nullptr && cached->key == block_key) return *cached;
     const auto next = static_cast<std::uint32_t>(blocks_.size());
     const std::uint32_t i = index_.insert(block_key, next);
     if (i == next) blocks_.push_back(new (headers_->allocate(sizeof(VoxelBlock), alignof(VoxelBlock))) VoxelBlock(block_key));
     cached = blocks_[i];
     return *cached;
+  }
+
+  /// Where block \p k goes in the cache of recent blocks.
+  [[nodiscard]] static std::size_t recent_slot(const VoxelKey& k) noexcept {
+    return static_cast<std::size_t>((k.x & 15) | ((k.y & 15) << 4) | ((k.z & 7) << 8));
   }
 
   /// Allocates the cells of \p mask that \p b lacks (zero-filled); returns whether there were
@@ -288,9 +316,6 @@ class BlockGrid {
   // index (hash, slot, block pointer: three dependent cache misses on a large map). Only the
   // writing path uses it; find() stays free of side effects for concurrent readers.
   static constexpr int kRecentBits = 11;
-  [[nodiscard]] static std::size_t recent_slot(const VoxelKey& k) noexcept {
-    return static_cast<std::size_t>((k.x & 15) | ((k.y & 15) << 4) | ((k.z & 7) << 8));
-  }
   std::unique_ptr<std::array<VoxelBlock*, std::size_t{1} << kRecentBits>> recent_ =
       std::make_unique<std::array<VoxelBlock*, std::size_t{1} << kRecentBits>>();
 
