@@ -50,27 +50,33 @@ struct ProbabilityUpdater::Impl {
       std::size_t count = 0;
       std::size_t num_blocks = 0;  // blocks with cells to add, in `blocks`
       keys.compute_blocks(points, begin, static_cast<std::size_t>(end - begin), divide);
-      for (Eigen::Index i = begin; i < end; ++i) {
-        const auto r = static_cast<std::size_t>(i - begin);
-        if (skip != 0 && !detail::row_is_finite(points, intensities, i)) {
-          ++skipped;  // counted chunk by chunk, so that the count matches the rows applied
-          continue;
+      std::size_t chunk_skipped = 0;  // added to `skipped` once the chunk is applied
+      try {
+        for (Eigen::Index i = begin; i < end; ++i) {
+          const auto r = static_cast<std::size_t>(i - begin);
+          if (skip != 0 && !detail::row_is_finite(points, intensities, i)) {
+            ++chunk_skipped;
+            continue;
+          }
+          // Straight to the grid's cache of recent blocks, not through a last-block accessor: a
+          // scan's rows change block every two or three rows, and that branch mispredicted.
+          detail::VoxelBlock& b = grid.get_or_create(keys.block(r), keys.slot(r));
+          const int index = keys.index(r);
+          const std::uint64_t missing = (std::uint64_t{1} << (index >> 3)) & ~b.cell_mask;
+          detail::Voxel* v = nullptr;
+          if (missing != 0) {
+            const std::uint64_t before = b.pending;
+            b.pending = before | missing;
+            blocks[num_blocks] = &b;
+            num_blocks += before == 0 ? 1 : 0;  // the block's first missing cell
+          } else {
+            v = &b.existing(index);
+          }
+          chunk[count++] = {&b, v, index, static_cast<std::uint32_t>(i)};
         }
-        // Straight to the grid's cache of recent blocks, not through a last-block accessor: a
-        // scan's rows change block every two or three rows, and that branch mispredicted.
-        detail::VoxelBlock& b = grid.get_or_create(keys.block(r), keys.slot(r));
-        const int index = keys.index(r);
-        const std::uint64_t missing = (std::uint64_t{1} << (index >> 3)) & ~b.cell_mask;
-        detail::Voxel* v = nullptr;
-        if (missing != 0) {
-          const std::uint64_t before = b.pending;
-          b.pending = before | missing;
-          blocks[num_blocks] = &b;
-          num_blocks += before == 0 ? 1 : 0;  // the block's first missing cell
-        } else {
-          v = &b.existing(index);
-        }
-        chunk[count++] = {&b, v, index, static_cast<std::uint32_t>(i)};
+      } catch (...) {
+        for (std::size_t d = 0; d < num_blocks; ++d) blocks[d]->pending = 0;  // no note may outlive the call
+        throw;
       }
       if (num_blocks != 0) {
         allocate_pending(num_blocks);
@@ -83,6 +89,7 @@ struct ProbabilityUpdater::Impl {
         const Target& t = chunk[j];
         apply_voxel(*t.block, *t.voxel, in.intensity(t.row), in.occupied_flag(t.row), in.weight(t.row));
       }
+      skipped += chunk_skipped;
     }
   }
 

@@ -8,13 +8,20 @@
 
 #include <gtest/gtest.h>
 
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <fstream>
 #include <initializer_list>
 #include <cstdint>
 #include <limits>
 #include <map>
+#include <new>
+#include <optional>
 #include <random>
 #include <set>
 #include <stdexcept>
@@ -948,6 +955,94 @@ TEST(ProbabilityUpdaterThreads, OutOfRangePointThrowsTheFirstErrorAndKeepsTheMap
     EXPECT_NE(std::string(e.what()).find("point 100 "), std::string::npos) << e.what();
   }
   EXPECT_EQ(m.get_num_nodes(), 0u);
+}
+
+}  // namespace
+}  // namespace iwlomap
+
+namespace iwlomap {
+namespace {
+
+// Runs \p scenario in a child process whose address space is limited, so that the map's
+// allocations fail (std::bad_alloc) part-way through a batch; returns the child's exit code.
+// Sanitizers reserve far more address space than any limit leaves, so they cannot run it.
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+constexpr bool kCanLimitAddressSpace = false;
+#else
+constexpr bool kCanLimitAddressSpace = true;
+#endif
+
+std::size_t address_space_bytes() {
+  std::ifstream statm("/proc/self/statm");
+  std::size_t pages = 0;
+  statm >> pages;
+  return pages * static_cast<std::size_t>(::sysconf(_SC_PAGESIZE));
+}
+
+// The child's checks, as exit codes (no gtest in the child).
+enum OutOfMemoryResult : int { kOk = 0, kNeverFailed = 10, kWrongException, kSecondCallFailed, kMapInconsistent };
+
+int run_out_of_memory_scenario(std::size_t margin) {
+  // One point per 8^3 block, so that every row needs a new block and a new cell.
+  constexpr int kSide = 550;
+  const Eigen::Index n = Eigen::Index{kSide} * kSide;
+  Eigen::MatrixXd points(n, 3);
+  for (int i = 0; i < kSide; ++i)
+    for (int j = 0; j < kSide; ++j) points.row(Eigen::Index{i} * kSide + j) << 0.8 * i + 0.05, 0.8 * j + 0.05, 0.05;
+  const Eigen::VectorXd intensities = Eigen::VectorXd::Constant(n, 200.0);
+  const std::vector<bool> occupied(static_cast<std::size_t>(n), true);
+
+  ProbabilityUpdater map(0.1);
+  rlimit old{};
+  ::getrlimit(RLIMIT_AS, &old);
+  rlimit low = old;
+  low.rlim_cur = static_cast<rlim_t>(address_space_bytes() + margin);
+  ::setrlimit(RLIMIT_AS, &low);
+  bool failed = false;
+  try {
+    map.batch_update_iwlo(points, intensities, occupied);
+  } catch (const std::bad_alloc&) {
+    failed = true;
+  } catch (...) {
+    ::setrlimit(RLIMIT_AS, &old);
+    return kWrongException;
+  }
+  ::setrlimit(RLIMIT_AS, &old);
+  if (!failed) return kNeverFailed;
+  try {
+    map.batch_update_iwlo(points, intensities, occupied);
+  } catch (...) {
+    return kSecondCallFailed;
+  }
+  // The chunks applied before the failure hold count 2, every other row's voxel count 1, and the
+  // applied rows are a prefix of the batch.
+  std::size_t visited = 0;
+  map.for_each_voxel([&visited](const VoxelKey&, const VoxelState&) { ++visited; });
+  if (visited != static_cast<std::size_t>(n) || map.get_num_nodes() != static_cast<std::size_t>(n))
+    return kMapInconsistent;
+  bool in_prefix = true;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const std::optional<VoxelState> v = map.query(points.row(i).transpose());
+    if (!v || v->count < 1 || v->count > 2 || (v->count == 2 && !in_prefix)) return kMapInconsistent;
+    in_prefix = v->count == 2;
+  }
+  return kOk;
+}
+
+TEST(ProbabilityUpdater, StaysConsistentWhenMemoryRunsOutDuringABatch) {
+  if (!kCanLimitAddressSpace) GTEST_SKIP() << "sanitizers reserve address space beyond any limit";
+  // Margins from tight to loose make the allocation fail at different points of the batch.
+  for (const std::size_t margin_mib : {1, 4, 12, 24}) {
+    SCOPED_TRACE("address-space margin " + std::to_string(margin_mib) + " MiB");
+    const pid_t pid = ::fork();
+    ASSERT_GE(pid, 0);
+    if (pid == 0) ::_exit(run_out_of_memory_scenario(margin_mib << 20));
+    int status = 0;
+    ASSERT_EQ(::waitpid(pid, &status, 0), pid);
+    ASSERT_TRUE(WIFEXITED(status)) << "the child did not exit normally";
+    EXPECT_EQ(WEXITSTATUS(status), kOk) << "10: never ran out of memory, 11: not std::bad_alloc, 12: the second "
+                                           "call failed, 13: map inconsistent";
+  }
 }
 
 }  // namespace
