@@ -74,8 +74,9 @@ class FlatKeyMap {
 
   // Small tables grow fourfold: fewer rehashes while a map fills, and a lower load factor on
   // average, so fewer probes per look-up (measured on a scan's batch into a new map: 4% less time
-  // to fill it, 4% less to update it again). From kFourfoldUpTo slots (16 MiB) on, twofold.
-  static constexpr std::size_t kFourfoldUpTo = std::size_t{1} << 20;
+  // to fill it, 4% less to update it again). From kFourfoldUpTo slots (1 MiB) on, twofold, which
+  // keeps the index of a large map to 16-32 bytes a block (the Ouster frame's map was 5 MiB larger).
+  static constexpr std::size_t kFourfoldUpTo = std::size_t{1} << 16;
   void grow() {
     std::vector<Slot> old(slots_.size() * (slots_.size() < kFourfoldUpTo ? 4 : 2), Slot{});
     old.swap(slots_);
