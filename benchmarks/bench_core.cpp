@@ -17,7 +17,7 @@
 // program ends with a voxel-by-voxel comparison of the two maps, so a speedup never comes from
 // doing less work. See docs/benchmarks.md for the figures and how to read them.
 //
-// Usage: bench_core [--reps N] [--resolution R] [--data DIR] [--quick]
+// Usage: bench_core [--reps N] [--batch-reps N] [--resolution R] [--data DIR] [--quick]
 
 #include "bench_util.h"
 #include "iwlomap/iwlo.h"
@@ -68,6 +68,9 @@ const char* const kOusterFrame = "ouster_os1_128_3frames/frame_000_world.pcd";
 
 struct Options {
   int reps = 5;
+  // A batch takes 1-20 ms a side against seconds for a scan, so (a) affords more repetitions:
+  // its median then moves less with the machine's noise, which for a 1 ms call is large.
+  int batch_reps = 25;
   double resolution = 0.1;
   std::string data_dir = IWLOMAP_BENCH_DATA_DIR;
   bool quick = false;
@@ -75,31 +78,40 @@ struct Options {
 
 void print_usage(const char* argv0) {
   std::printf(
-      "Usage: %s [--reps N] [--resolution R] [--data DIR] [--quick]\n"
-      "  --reps N        timed repetitions per measurement (default 5; the median is reported)\n"
+      "Usage: %s [--reps N] [--batch-reps N] [--resolution R] [--data DIR] [--quick]\n"
+      "  --reps N        timed repetitions per scan measurement, (b) and (c) (default 5; the\n"
+      "                  median is reported)\n"
+      "  --batch-reps N  timed repetitions of the batch measurement (a) (default 25)\n"
       "  --resolution R  voxel edge in metres for both libraries (default 0.1)\n"
       "  --data DIR      folder holding %s (default %s)\n"
-      "  --quick         2 repetitions (a smoke run; figures are noisier)\n",
+      "  --quick         2 repetitions, 5 of the batch (a smoke run; figures are noisier)\n",
       argv0, kOusterFrame, IWLOMAP_BENCH_DATA_DIR);
 }
 
 Options parse_options(int argc, char** argv) {
   Options o;
   bool reps_given = false;
+  bool batch_reps_given = false;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto value = [&](const char* name) -> std::string {
       if (i + 1 >= argc) throw std::invalid_argument(std::string(name) + " needs a value");
       return argv[++i];
     };
-    if (a == "--reps") {
-      const std::string v = value("--reps");
+    const auto count = [&](const char* name) {
+      const std::string v = value(name);
       char* end = nullptr;
       const long n = std::strtol(v.c_str(), &end, 10);
       if (end == v.c_str() || *end != '\0' || n < 1 || n > 1000)
-        throw std::invalid_argument("--reps must be an integer in [1, 1000], got '" + v + "'");
-      o.reps = static_cast<int>(n);
+        throw std::invalid_argument(std::string(name) + " must be an integer in [1, 1000], got '" + v + "'");
+      return static_cast<int>(n);
+    };
+    if (a == "--reps") {
+      o.reps = count("--reps");
       reps_given = true;
+    } else if (a == "--batch-reps") {
+      o.batch_reps = count("--batch-reps");
+      batch_reps_given = true;
     } else if (a == "--resolution") {
       const std::string v = value("--resolution");
       char* end = nullptr;
@@ -119,6 +131,7 @@ Options parse_options(int argc, char** argv) {
     }
   }
   if (o.quick && !reps_given) o.reps = 2;
+  if (o.quick && !batch_reps_given) o.batch_reps = 5;
   return o;
 }
 
@@ -164,6 +177,7 @@ struct Row {
   std::size_t points = 0;
   std::vector<double> iw_ms, om_ms;          // wall clock
   std::vector<double> iw_cpu_ms, om_cpu_ms;  // thread CPU time
+  std::vector<bool> iw_after_om;             // iwlomap's call came right after an OctoMap call
   [[nodiscard]] double iw() const { return median(iw_ms); }
   [[nodiscard]] double om() const { return median(om_ms); }
   [[nodiscard]] double speedup() const { return om() / iw(); }
@@ -444,9 +458,9 @@ void progress(const Row& r, std::size_t i) {
   std::fflush(stdout);
 }
 
-// Runs one untimed warm-up round (first-touch page faults, caches), then o.reps timed rounds that
+// Runs one untimed warm-up round (first-touch page faults, caches), then \p reps timed rounds that
 // alternate which library goes first.
-std::pair<Row, Row> measure(const Options& o, const ScanInput& in, const std::string& first_name,
+std::pair<Row, Row> measure(const Options& o, int reps, const ScanInput& in, const std::string& first_name,
                             const std::string& steady_name,
                             const std::function<TimePair(double, const ScanInput&)>& iw_fn,
                             const std::function<TimePair(double, const ScanInput&)>& om_fn) {
@@ -466,7 +480,7 @@ std::pair<Row, Row> measure(const Options& o, const ScanInput& in, const std::st
   };
   (void)iw_call();
   (void)om_call();
-  for (int i = 0; i < o.reps; ++i) {
+  for (int i = 0; i < reps; ++i) {
     TimePair iw, om;
     if (i % 2 == 0) {
       iw = iw_call();
@@ -481,6 +495,7 @@ std::pair<Row, Row> measure(const Options& o, const ScanInput& in, const std::st
       row->om_ms.push_back(om_s.wall_ms);
       row->iw_cpu_ms.push_back(iw_s.cpu_ms);
       row->om_cpu_ms.push_back(om_s.cpu_ms);
+      row->iw_after_om.push_back(i % 2 == 1 || i == 0);  // round 0 follows the warm-up's OctoMap call
     }
     progress(first, static_cast<std::size_t>(i));
     progress(steady, static_cast<std::size_t>(i));
@@ -489,12 +504,12 @@ std::pair<Row, Row> measure(const Options& o, const ScanInput& in, const std::st
 }
 
 std::pair<Row, Row> measure_batch(const Options& o, const ScanInput& in) {
-  return measure(o, in, "batch_update_iwlo / updateNode, empty", "batch_update_iwlo / updateNode, again",
+  return measure(o, o.batch_reps, in, "batch_update_iwlo / updateNode, empty", "batch_update_iwlo / updateNode, again",
                  time_iw_batch, time_om_batch);
 }
 
 std::pair<Row, Row> measure_scan(const Options& o, const ScanInput& in) {
-  return measure(o, in, in.name + ", first scan", in.name + ", steady state", time_iw_scan, time_om_scan);
+  return measure(o, o.reps, in, in.name + ", first scan", in.name + ", steady state", time_iw_scan, time_om_scan);
 }
 
 Agreement scan_agreement(const Options& o, const ScanInput& in) {
@@ -546,6 +561,18 @@ void print_table(const std::vector<Row>& rows) {
   for (const Row& r : rows)
     std::printf("  %-40s iwlomap %-18s OctoMap %s\n", r.name.c_str(), spread(r.iw_ms).c_str(),
                 spread(r.om_ms).c_str());
+  // The rounds alternate which library goes first, so half of iwlomap's calls follow an OctoMap
+  // call (whose octree churned the caches) and half follow iwlomap's own previous call; for the
+  // short batch calls the two halves differ, and their medians are shown apart.
+  std::printf("by what ran just before iwlomap's call, wall clock (median ms, speedup over OctoMap's median):\n");
+  for (const Row& r : rows) {
+    std::vector<double> after_om, after_iw;
+    for (std::size_t i = 0; i < r.iw_ms.size(); ++i) (r.iw_after_om[i] ? after_om : after_iw).push_back(r.iw_ms[i]);
+    if (after_om.empty() || after_iw.empty()) continue;
+    std::printf("  %-40s after OctoMap %8.2f ms %5.1fx (%zu)   after iwlomap %8.2f ms %5.1fx (%zu)\n", r.name.c_str(),
+                median(after_om), r.om() / median(after_om), after_om.size(), median(after_iw),
+                r.om() / median(after_iw), after_iw.size());
+  }
 }
 
 // The machine is shared; the load average says how much else ran during the measurements.
@@ -570,8 +597,8 @@ int main(int argc, char** argv) {
   }
 
   std::printf("bench_core: iwlomap core engine (RAM backend) vs OctoMap %s\n", IWLOMAP_BENCH_OCTOMAP_VERSION);
-  std::printf("  resolution %.3f m, %d repetition(s) per measurement (median reported), single thread\n",
-              o.resolution, o.reps);
+  std::printf("  resolution %.3f m, %d repetition(s) of the batch, %d of each scan measurement (median reported), "
+              "single thread\n", o.resolution, o.batch_reps, o.reps);
   std::printf("  compiler %s, %s\n", __VERSION__,
 #ifdef NDEBUG
               "NDEBUG (optimised build)"
@@ -628,8 +655,8 @@ int main(int argc, char** argv) {
     print_agreement("(b) synthetic scan, insert_scan / insertPointCloud", scan_agreement(o, synthetic));
     if (ouster) print_agreement("(c) Ouster frame 0, insert_scan / insertPointCloud, 25 m", scan_agreement(o, *ouster));
 
-    std::printf("\nsummary (resolution %.3f m, median of %d, single thread; speedup = OctoMap time / iwlomap "
-                "time):\n", o.resolution, o.reps);
+    std::printf("\nsummary (resolution %.3f m, median of %d repetitions for (a), %d for (b) and (c), single thread; "
+                "speedup = OctoMap time / iwlomap time):\n", o.resolution, o.batch_reps, o.reps);
     auto line = [](const char* what, const char* vs, const Row& r, const char* label, double target) {
       std::printf("%s speedup vs OctoMap %s: %.1fx wall, %.1fx CPU time (%s; target >= %.0fx: %s wall, %s CPU)\n",
                   what, vs, r.speedup(), r.cpu_speedup(), label, target, verdict(r.speedup(), target),
