@@ -18,12 +18,10 @@
 
 #include <gtest/gtest.h>
 
-#include <stdlib.h>  // mkdtemp
 
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
-#include <filesystem>
 #include <functional>
 #include <limits>
 #include <map>
@@ -60,20 +58,9 @@ struct RamFactory {
 // written and read back while the suite runs. The factory owns a temporary directory per test.
 struct DiskFactory {
   static constexpr const char* kType = "Disk";
-  DiskFactory() {
-    std::string tmpl = (std::filesystem::temp_directory_path() / "iwlomap_contract_XXXXXX").string();
-    if (::mkdtemp(tmpl.data()) == nullptr) throw std::runtime_error("mkdtemp failed for " + tmpl);
-    dir_ = tmpl;
-  }
-  ~DiskFactory() {
-    std::error_code ec;
-    std::filesystem::remove_all(dir_, ec);
-  }
-  DiskFactory(const DiskFactory&) = delete;
-  DiskFactory& operator=(const DiskFactory&) = delete;
   BackendOptions options(double resolution) {
     BackendOptions o;
-    o.directory = dir_ + "/map" + std::to_string(maps_++);
+    o.directory = dir_.sub("map" + std::to_string(maps_++));
     o.tile_size = 64 * resolution;
     o.cache_tiles = 2;
     return o;
@@ -82,7 +69,7 @@ struct DiskFactory {
     const BackendOptions o = options(resolution);
     return std::make_unique<OutofcoreTileMapper>(o.directory, resolution, o.tile_size, o.cache_tiles);
   }
-  std::string dir_;
+  TempDir dir_;
   int maps_ = 0;
 };
 
