@@ -74,12 +74,16 @@ struct ProbabilityUpdater::Impl {
           }
           chunk[count++] = {&b, v, index, static_cast<std::uint32_t>(i)};
         }
+        for (std::size_t d = 0; d < num_blocks; ++d) {
+          grid.ensure_cells(*blocks[d], blocks[d]->pending);
+          blocks[d]->pending = 0;
+        }
       } catch (...) {
-        for (std::size_t d = 0; d < num_blocks; ++d) blocks[d]->pending = 0;  // no note may outlive the call
+        // Finding a block or allocating cells ran out of memory: no note may outlive the call.
+        for (std::size_t d = 0; d < num_blocks; ++d) blocks[d]->pending = 0;
         throw;
       }
       if (num_blocks != 0) {
-        allocate_pending(num_blocks);
         // Adding cells to a block may have moved its cells: take every address again.
         for (std::size_t j = 0; j < count; ++j) chunk[j].voxel = &chunk[j].block->existing(chunk[j].index);
       }
@@ -90,22 +94,6 @@ struct ProbabilityUpdater::Impl {
         apply_voxel(*t.block, *t.voxel, in.intensity(t.row), in.occupied_flag(t.row), in.weight(t.row));
       }
       skipped += chunk_skipped;
-    }
-  }
-
-  // Allocates the cells the first \p num_blocks entries of `blocks` noted as pending and clears
-  // their notes, also when an allocation fails.
-  void allocate_pending(std::size_t num_blocks) {
-    std::size_t d = 0;
-    try {
-      for (; d < num_blocks; ++d) {
-        detail::VoxelBlock& b = *blocks[d];
-        grid.ensure_cells(b, b.pending);
-        b.pending = 0;
-      }
-    } catch (...) {
-      for (; d < num_blocks; ++d) blocks[d]->pending = 0;
-      throw;
     }
   }
 
@@ -123,7 +111,7 @@ struct ProbabilityUpdater::Impl {
   };
   static constexpr Eigen::Index kChunkRows = detail::ChunkKeys::kRows;
   std::array<Target, kChunkRows> chunk;  // one chunk of a batch, resolved
-  std::array<detail::VoxelBlock*, kChunkRows> blocks;  // the chunk's distinct blocks
+  std::array<detail::VoxelBlock*, kChunkRows> blocks;  // the chunk's blocks with cells to add
   detail::ChunkKeys keys;  // of the chunk's rows
   std::size_t known = 0;
   std::size_t skipped = 0;
