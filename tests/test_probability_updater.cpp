@@ -1014,8 +1014,8 @@ int run_out_of_memory_scenario(std::size_t margin) {
   } catch (...) {
     return kSecondCallFailed;
   }
-  // The chunks applied before the failure hold count 2, every other row's voxel count 1, and the
-  // applied rows are a prefix of the batch.
+  // The groups of rows applied before the failure hold count 2, every other row's voxel count 1,
+  // and the applied rows are a prefix of the batch.
   std::size_t visited = 0;
   map.for_each_voxel([&visited](const VoxelKey&, const VoxelState&) { ++visited; });
   if (visited != static_cast<std::size_t>(n) || map.get_num_nodes() != static_cast<std::size_t>(n))
