@@ -129,7 +129,7 @@ struct ProbabilityUpdater::Impl {
         // Adding cells to a block may have moved its cells: take every address again.
         for (std::size_t j = 0; j < count; ++j) chunk[j].voxel = &chunk[j].block->existing(chunk[j].index);
       }
-      constexpr std::size_t kAhead = 16;
+      constexpr std::size_t kAhead = 64;
       for (std::size_t j = 0; j < count; ++j) {
         if (j + kAhead < count) __builtin_prefetch(chunk[j + kAhead].voxel, 1);
         const BatchScratch::Target& t = chunk[j];
