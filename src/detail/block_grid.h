@@ -264,9 +264,12 @@ class BlockGrid {
     return *cached;
   }
 
-  /// Where block \p k goes in the cache of recent blocks.
+  /// Where block \p k goes in the cache of recent blocks: the top bits of a multiplicative hash
+  /// in 32-bit arithmetic (so the batch path computes it vectorised).
   [[nodiscard]] static std::size_t recent_slot(const VoxelKey& k) noexcept {
-    return static_cast<std::size_t>((k.x & 15) | ((k.y & 15) << 4) | ((k.z & 7) << 8));
+    const std::uint32_t h = static_cast<std::uint32_t>(k.x) * 0x9E3779B1u + static_cast<std::uint32_t>(k.y) * 0x85EBCA77u +
+                            static_cast<std::uint32_t>(k.z) * 0xC2B2AE3Du;
+    return static_cast<std::size_t>(h >> (32 - kRecentBits));
   }
 
   /// Allocates the cells of \p mask that \p b lacks (zero-filled); returns whether there were
@@ -310,11 +313,14 @@ class BlockGrid {
  private:
   void add_cells(VoxelBlock& b, std::uint64_t added);
 
-  // A direct-mapped cache of recently used blocks in front of the index, by position: a scan's
-  // points run along rings, and a ring comes back to the blocks of the previous ring about a
-  // thousand points later, so most block changes of a batch hit here instead of walking the
-  // index (hash, slot, block pointer: three dependent cache misses on a large map). Only the
-  // writing path uses it; find() stays free of side effects for concurrent readers.
+  // A direct-mapped cache of recently used blocks in front of the index: a scan's points run
+  // along rings, and a ring comes back to the blocks of the previous ring about a thousand points
+  // later, so most block changes of a batch hit here instead of walking the index (hash, slot,
+  // block pointer: three dependent cache misses on a large map). Slots come from a hash of the
+  // block coordinate, not from its low bits: with x, y and z taken 4, 4 and 3 bits wide, the
+  // synthetic scan's batch missed 7,888 times into an empty map and 7,794 times again (blocks
+  // 16 apart on the ground collided); hashed, 4,654 and 4,140 (3,992 blocks). Only the writing
+  // path uses it; find() stays free of side effects for concurrent readers.
   static constexpr int kRecentBits = 11;
   std::unique_ptr<std::array<VoxelBlock*, std::size_t{1} << kRecentBits>> recent_ =
       std::make_unique<std::array<VoxelBlock*, std::size_t{1} << kRecentBits>>();
