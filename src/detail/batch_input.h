@@ -19,8 +19,18 @@
 namespace iwlomap::detail {
 
 // Functions with a second copy compiled for AVX2, chosen at load time on x86-64 (GCC and Clang
-// build both and the loader picks by CPU); the loops they hold vectorise twice as wide.
-#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+// build both and the loader picks by CPU); the loops they hold vectorise twice as wide. Not under
+// ThreadSanitizer: the loader runs the chooser (an ifunc resolver) before the sanitizer's runtime
+// is up, and the instrumented chooser crashed every test program at start.
+#if defined(__has_feature)
+#if __has_feature(thread_sanitizer)
+#define IWLOMAP_NO_CLONES 1
+#endif
+#endif
+#if defined(__SANITIZE_THREAD__)
+#define IWLOMAP_NO_CLONES 1
+#endif
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__)) && !defined(IWLOMAP_NO_CLONES)
 #define IWLOMAP_AVX2_CLONE __attribute__((target_clones("avx2", "default")))
 #else
 #define IWLOMAP_AVX2_CLONE
