@@ -2,7 +2,9 @@
 # SPDX-License-Identifier: BSD-3-Clause
 # The whole test suite from a fresh clone: installs the packages, builds everything (Release) and
 # runs every test under a virtual X server (the render tests need one). With CI=true, or with
-# --sanitize, it also builds and runs the suite with AddressSanitizer + UBSan.
+# --sanitize, it also builds and runs the suite with AddressSanitizer + UBSan, and the tests of
+# the threaded code (background jobs, the asynchronous mapper, multi-threaded scans) with
+# ThreadSanitizer.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -29,4 +31,9 @@ if [ "$SANITIZE" = 1 ]; then
     -DIWLOMAP_SANITIZE=ON -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_WITH_VIEWER=OFF
   (cd build-asan && ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
     ctest --output-on-failure -j 2 -E "Consumer")
+  echo "== ThreadSanitizer build (threaded code) =="
+  # Without the PCL layer: PCL's io library loads OpenNI2, whose start-up code the sanitizer reports.
+  BUILD_DIR=build-tsan BUILD_TYPE=RelWithDebInfo bash scripts/build.sh -DIWLOMAP_BUILD_TESTS=ON \
+    -DIWLOMAP_TSAN=ON -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_WITH_VIEWER=OFF -DIWLOMAP_WITH_FILTERS=OFF
+  (cd build-tsan && ctest --output-on-failure -j 2 -R "BackgroundJob|AsyncMapper|Threads")
 fi
