@@ -94,6 +94,15 @@ void SlabArena::release() noexcept {
   used_ = capacity_ = bytes_ = 0;
 }
 
+VoxelBlock& BlockGrid::get_or_create_missed(const VoxelKey& block_key, std::size_t slot) {
+  const auto next = static_cast<std::uint32_t>(blocks_.size());
+  const std::uint32_t i = index_.insert(block_key, next);
+  if (i == next) blocks_.push_back(new (headers_->allocate(sizeof(VoxelBlock), alignof(VoxelBlock))) VoxelBlock(block_key));
+  VoxelBlock* const b = blocks_[i];
+  (*recent_)[slot] = b;
+  return *b;
+}
+
 void BlockGrid::add_cells(VoxelBlock& b, std::uint64_t added) {
   // New cells go to the end of the block's array, so no cell ever moves within it; the array
   // doubles when full (one copy of the cells, amortised below one per added cell).

@@ -255,14 +255,14 @@ class BlockGrid {
   VoxelBlock& get_or_create(const VoxelKey& block_key) { return get_or_create(block_key, recent_slot(block_key)); }
   /// get_or_create() for a block whose recent_slot() is known.
   VoxelBlock& get_or_create(const VoxelKey& block_key, std::size_t slot) {
-    VoxelBlock*& cached = (*recent_)[slot];
+    VoxelBlock* const cached = (*recent_)[slot];
     if (cached != nullptr && cached->key == block_key) return *cached;
-    const auto next = static_cast<std::uint32_t>(blocks_.size());
-    const std::uint32_t i = index_.insert(block_key, next);
-    if (i == next) blocks_.push_back(new (headers_->allocate(sizeof(VoxelBlock), alignof(VoxelBlock))) VoxelBlock(block_key));
-    cached = blocks_[i];
-    return *cached;
+    return get_or_create_missed(block_key, slot);
   }
+  /// get_or_create() once block_key was not found in the cache of recent blocks. Out of line, so
+  /// that the loops around the look-up keep their values in registers (inlined, the index's insert
+  /// made the RAM batch path spill them: 3-4% of its time).
+  VoxelBlock& get_or_create_missed(const VoxelKey& block_key, std::size_t slot);
 
   /// Where block \p k goes in the cache of recent blocks: the top bits of a multiplicative hash
   /// in 32-bit arithmetic (so the batch path computes it vectorised).
