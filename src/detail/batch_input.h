@@ -85,8 +85,12 @@ class FloorDivider {
   /// in int32 (others get unspecified values). \p flags (n entries) is scratch. Branch-free so that
   /// it vectorises: floor(q) is in the low bits of (q - 0.5) + 1.5 * 2^52, which rounds q - 0.5 to
   /// the nearest integer, and that is floor(q) whenever q is not within the rounding difference of
-  /// an integer; the values that are (points on voxel faces, such as a ground at z = 0) or any
-  /// value when 1 / r is not ordinary go through operator() afterwards, one by one.
+  /// an integer. Two cases near the integer 0 are exact here too: x = +-0 (a ground plane at
+  /// z = 0), whose tie rounds to the even 0, and 2^-1000 <= |q| < 0.5 (the coordinate 1e-16 of a
+  /// beam at an azimuth of 90 degrees), where x / r has q's sign and floor(x / r) is 0 or -1.
+  /// The other values near a voxel face, and every value when 1 / r is not ordinary, go through
+  /// operator() afterwards, one by one (a chunk of the synthetic scan with one such value paid a
+  /// second loop over all its values: 4% of a batch update).
   void floor_many(const double* x, std::size_t n, std::int64_t* out, std::int64_t* flags) const {
     constexpr double kMagic = 0x1.8p52;
     const double inverse = inverse_;
@@ -95,7 +99,8 @@ class FloorDivider {
       const double q = x[i] * inverse;
       const double s = (q - 0.5) + kMagic;
       const double f = q - (s - kMagic);  // q - floor(q), exact when |q| < 2^31
-      std::memcpy(&out[i], &s, sizeof s);
+      std::int64_t magic_key;
+      std::memcpy(&magic_key, &s, sizeof s);
       // Negative when clear of an integer by 2^-17 (>> the rounding difference below 2^31) and
       // when inside the int32 range; sign bits rather than comparisons keep the loop branch-free.
       const double clear = std::abs(f - 0.5) - (0.5 - 0x1p-17);
@@ -103,14 +108,17 @@ class FloorDivider {
       std::int64_t c, r;
       std::memcpy(&c, &clear, sizeof c);
       std::memcpy(&r, &inside, sizeof r);
-      flags[i] = ~(c & r);  // sign bit set: needs operator()
+      const double a = std::abs(q);
+      const std::int64_t small = -static_cast<std::int64_t>((a < 0.5) & (a >= 0x1p-1000));  // all bits or none
+      const std::int64_t sign_key = -static_cast<std::int64_t>(q < 0.0);                     // -1 or 0
+      const std::int64_t nonzero = -static_cast<std::int64_t>(x[i] != 0.0);
+      out[i] = (magic_key & ~small) | (sign_key & small);
+      flags[i] = ~(c & r) & ~small & nonzero;  // sign bit set: needs operator()
       any |= flags[i];
     }
     if (fast_ && any >= 0) return;
     for (std::size_t i = 0; i < n; ++i) {
       if (fast_ && flags[i] >= 0) continue;
-      // A coordinate of exactly 0 (a ground plane at z = 0, a planar scan) is common and needs no
-      // division; any other value near a voxel face does.
       const double k = x[i] == 0.0 ? 0.0 : (*this)(x[i]);  // NaN for a non-finite x
       out[i] = k >= -0x1p31 && k < 0x1p31 ? static_cast<std::int64_t>(k) : 0;
     }
