@@ -376,11 +376,19 @@ TYPED_TEST(BackendContract, KeepsAllVoxelsWhenPruned) {
   expect_same_map(*map, *ref);
 }
 
-// Points on voxel faces, a rounding error to either side of them, and in between: every
-// backend puts each one in the voxel of world_to_key(), i.e. floor(x / r) with a division.
+// Points on voxel faces, a rounding error to either side of them, and in between, and the face
+// at 0 above all: +-0, the 1e-16 of a beam at an azimuth of 90 degrees, the smallest doubles and
+// the bound 2^-1000 of the key computation's rule for them. Every backend puts each one in the
+// voxel of world_to_key(), i.e. floor(x / r) with a division.
 TYPED_TEST(BackendContract, PutsPointsInVoxelOfWorldToKeyWhenOnOrNearVoxelFaces) {
+  const double tiny = std::numeric_limits<double>::denorm_min();
+  const double smallest_normal = std::numeric_limits<double>::min();
+  const double bound = 0x1p-1000;
   for (const double r : {0.1, 0.05, 0.3, 1.0, 0.07}) {
-    std::vector<double> coords;
+    std::vector<double> coords = {0.0, -0.0, 1e-16, -1e-16, 6e-17, -6e-17, 1e-300, -1e-300, tiny, -tiny,
+                                  smallest_normal, -smallest_normal, bound, -bound, std::nextafter(bound, 0.0),
+                                  -std::nextafter(bound, 0.0), std::nextafter(0.5 * r, 0.0),
+                                  -std::nextafter(0.5 * r, 0.0), 0.5 * r, -0.5 * r};
     for (int k = -300; k <= 300; ++k) {
       const double face = k * r;
       coords.insert(coords.end(), {face, std::nextafter(face, -1e9), std::nextafter(face, 1e9), face + 1e-12,

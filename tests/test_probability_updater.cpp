@@ -718,53 +718,6 @@ TEST(ProbabilityUpdater, PutsPointsInVoxelOfWorldToKeyAtKeyRangeEndsAndExtremeRe
   }
 }
 
-// Coordinates at and next to voxel faces, near 0 above all (+-0, the 1e-16 of a beam at an
-// azimuth of 90 degrees, the smallest doubles), in batches longer than the key computation's
-// chunk of 512 rows, so that values of every kind share a chunk with others: every point must land
-// in world_to_key()'s voxel.
-TEST(ProbabilityUpdater, PutsPointsInVoxelOfWorldToKeyNearZeroAndOnVoxelFaces) {
-  const double tiny = std::numeric_limits<double>::denorm_min();
-  std::vector<double> values = {0.0, -0.0, 1e-16, -1e-16, 6e-17, -6e-17, 1e-300, -1e-300, tiny, -tiny,
-                                0x1p-1000, -0x1p-1000, std::nextafter(0x1p-1000, 0.0),
-                                -std::nextafter(0x1p-1000, 0.0), std::numeric_limits<double>::min(),
-                                -std::numeric_limits<double>::min()};
-  for (const double r : {0.1, 0.05, 0.3}) {
-    for (int k = -40; k <= 40; ++k) {  // faces k * r, and the doubles next to them
-      const double face = k * r;
-      values.insert(values.end(), {face, std::nextafter(face, -1e9), std::nextafter(face, 1e9), face + 0.5 * r,
-                                   (k - 0.5) * r, 0.5 * r, -0.5 * r, std::nextafter(0.5 * r, 0.0),
-                                   -std::nextafter(0.5 * r, 0.0)});
-    }
-  }
-  std::mt19937 rng(5u);
-  std::uniform_int_distribution<std::size_t> pick(0, values.size() - 1);
-  for (const double r : {0.1, 0.05, 0.3}) {
-    const Eigen::Index n = 3000;
-    Eigen::MatrixXd pts(n, 3);
-    std::map<VoxelKey, std::uint32_t> expected;
-    for (Eigen::Index i = 0; i < n; ++i) {
-      // Mostly ordinary coordinates, so that most chunks hold few of the values above.
-      const double ordinary = 3.0 * static_cast<double>(i % 97) / 97.0 - 1.37;
-      for (Eigen::Index c = 0; c < 3; ++c) pts(i, c) = (i + c) % 7 == 0 ? values[pick(rng)] : ordinary + 0.011 * c;
-      ++expected[world_to_key(pts.row(i).transpose(), r)];
-    }
-    ProbabilityUpdater map(r);
-    map.batch_update_iwlo(pts, Eigen::VectorXd::Constant(n, 200.0), std::vector<bool>(static_cast<std::size_t>(n), true));
-    std::map<VoxelKey, std::uint32_t> got;
-    for (const auto& [k, v] : snapshot(map)) got[k] = v.second;
-    EXPECT_EQ(got, expected) << "resolution " << r;
-  }
-  // Each special value alone on every axis.
-  for (const double v : values) {
-    const Eigen::Vector3d p(v, -v, v);
-    ProbabilityUpdater map(0.1);
-    map.batch_update_iwlo(p.transpose(), Eigen::VectorXd::Constant(1, 200.0), std::vector<bool>(1, true));
-    const Snapshot s = snapshot(map);
-    ASSERT_EQ(s.size(), 1u) << v;
-    EXPECT_EQ(s.begin()->first, world_to_key(p, 0.1)) << "x = " << v;
-  }
-}
-
 // Maps reuse the memory of destroyed maps (see block_grid.cpp): nothing of an old map may show.
 TEST(ProbabilityUpdater, StartsEmptyWhenMemoryOfDestroyedMapsIsReused) {
   std::mt19937 rng(11u);

@@ -119,7 +119,7 @@ class FloorDivider {
     if (fast_ && any >= 0) return;
     for (std::size_t i = 0; i < n; ++i) {
       if (fast_ && flags[i] >= 0) continue;
-      const double k = x[i] == 0.0 ? 0.0 : (*this)(x[i]);  // NaN for a non-finite x
+      const double k = (*this)(x[i]);  // NaN for a non-finite x
       out[i] = k >= -0x1p31 && k < 0x1p31 ? static_cast<std::int64_t>(k) : 0;
     }
   }
