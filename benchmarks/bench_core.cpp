@@ -68,7 +68,7 @@ constexpr double kTargetScanSpeedup = 25.0;
 const char* const kOusterFrame = "ouster_os1_128_3frames/frame_000_world.pcd";
 
 struct Options {
-  int reps = 5;
+  int reps = 5;  // of each scan measurement, and rounds of the growing map
   // A batch takes 1-20 ms a side against seconds for a scan, so (a) affords more repetitions:
   // its median then moves less with the machine's noise, which for a 1 ms call is large.
   int batch_reps = 25;
@@ -80,9 +80,9 @@ struct Options {
 void print_usage(const char* argv0) {
   std::printf(
       "Usage: %s [--reps N] [--batch-reps N] [--resolution R] [--data DIR] [--quick]\n"
-      "  --reps N        timed repetitions per scan measurement, (b) and (c) (default 5; the\n"
-      "                  median is reported)\n"
-      "  --batch-reps N  timed repetitions of the batch measurement (a) (default 25)\n"
+      "  --reps N        timed repetitions per scan measurement, (b) and (c), and rounds of the\n"
+      "                  growing-map batches of (a) (default 5; the median is reported)\n"
+      "  --batch-reps N  timed repetitions of the batch into an empty map and again, (a) (default 25)\n"
       "  --resolution R  voxel edge in metres for both libraries (default 0.1)\n"
       "  --data DIR      folder holding %s (default %s)\n"
       "  --quick         2 repetitions, 5 of the batch (a smoke run; figures are noisier)\n",
