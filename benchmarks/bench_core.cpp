@@ -517,25 +517,18 @@ Row measure_growing(const Options& o, int rounds, const ScanInput& in) {
   Row row;
   row.name = "growing map, batch into new space";
   row.points = static_cast<std::size_t>(in.points.rows());
-  std::vector<Eigen::MatrixXd> shifted;
-  std::vector<std::vector<octomap::point3d>> om_shifted;
+  std::vector<ScanInput> shifted;  // both libraries' copies of each batch, converted once
   for (int k = 0; k < kGrowingBatches; ++k) {
-    const double dx = 60.0 * (k + 1);
-    Eigen::MatrixXd q = in.points;
-    q.col(0).array() += dx;
-    std::vector<octomap::point3d> om_q;
-    om_q.reserve(static_cast<std::size_t>(q.rows()));
-    for (Eigen::Index i = 0; i < q.rows(); ++i)
-      om_q.emplace_back(static_cast<float>(q(i, 0)), static_cast<float>(q(i, 1)), static_cast<float>(q(i, 2)));
-    shifted.push_back(std::move(q));
-    om_shifted.push_back(std::move(om_q));
+    const Eigen::Vector3d shift(60.0 * (k + 1), 0.0, 0.0);
+    shifted.push_back(make_input(in.name, in.origin + shift, in.points.rowwise() + shift.transpose(), in.intensities,
+                                 in.max_range));
   }
   const auto iw_round = [&] {
     iwlomap::bench::settle_heap();
     auto m = make_iwlomap(o.resolution);
-    for (const Eigen::MatrixXd& q : shifted) {
+    for (const ScanInput& q : shifted) {
       const Stamp t0 = now();
-      m.batch_update_iwlo(q, in.intensities, in.occupied_flags);
+      m.batch_update_iwlo(q.points, q.intensities, q.occupied_flags);
       const Sample t = elapsed(t0, now());
       row.iw_ms.push_back(t.wall_ms);
       row.iw_cpu_ms.push_back(t.cpu_ms);
@@ -544,9 +537,9 @@ Row measure_growing(const Options& o, int rounds, const ScanInput& in) {
   const auto om_round = [&] {
     iwlomap::bench::settle_heap();
     OctoMapTree m(o.resolution);
-    for (const auto& q : om_shifted) {
+    for (const ScanInput& q : shifted) {
       const Stamp t0 = now();
-      for (const auto& p : q) m.tree.updateNode(p, kOctomapHitLogOdds, false);
+      for (const auto& p : q.om_points) m.tree.updateNode(p, kOctomapHitLogOdds, false);
       const Sample t = elapsed(t0, now());
       row.om_ms.push_back(t.wall_ms);
       row.om_cpu_ms.push_back(t.cpu_ms);
