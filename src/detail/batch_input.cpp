@@ -59,7 +59,7 @@ std::int64_t bits_of(double d) {
 // +0 (all bits clear) for a finite x and NaN otherwise; |x| - safe is negative (sign bit set)
 // inside the range; a weight w is fine when w - w is +0 and the sign bit of w is clear (-0 is
 // fine too, but goes the slow way).
-IWLOMAP_AVX2_CLONE
+IWLOMAP_CPU_CLONES
 bool all_rows_plain(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities, const Eigen::VectorXd* weights,
                     double safe) {
   const Eigen::Index n = points.rows();
@@ -85,13 +85,13 @@ bool all_rows_plain(const Eigen::MatrixXd& points, const Eigen::VectorXd& intens
 
 }  // namespace
 
-IWLOMAP_AVX2_CLONE
+IWLOMAP_CPU_CLONES
 void ChunkKeys::compute(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide) {
   for (std::size_t c = 0; c < 3; ++c)
     divide.floor_many(points.col(static_cast<Eigen::Index>(c)).data() + begin, rows, axis_[c].data(), flags_.data());
 }
 
-IWLOMAP_AVX2_CLONE
+IWLOMAP_CPU_CLONES
 void ChunkKeys::compute_blocks(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide) {
   compute(points, begin, rows, divide);
   for (std::size_t r = 0; r < rows; ++r) {

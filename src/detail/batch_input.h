@@ -18,8 +18,11 @@
 
 namespace iwlomap::detail {
 
-// Functions with a second copy compiled for AVX2, chosen at load time on x86-64 (GCC and Clang
-// build both and the loader picks by CPU); the loops they hold vectorise twice as wide. Not under
+// Functions with copies compiled for the x86-64-v4 (AVX-512) and x86-64-v3 (AVX2, BMI2, POPCNT)
+// levels beside the baseline one, chosen at load time on x86-64 (GCC and Clang build them all and
+// the loader picks by CPU): vectorised loops run 4 or 8 doubles wide, and scalar code gets the
+// newer bit instructions. The results are the same in every copy (integer arithmetic, and the
+// library's floating-point flags forbid contraction into fused multiply-adds). Not under
 // ThreadSanitizer: the loader runs the chooser (an ifunc resolver) before the sanitizer's runtime
 // is up, and the instrumented chooser crashed every test program at start.
 #if defined(__has_feature)
@@ -31,9 +34,9 @@ namespace iwlomap::detail {
 #define IWLOMAP_NO_CLONES 1
 #endif
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__)) && !defined(IWLOMAP_NO_CLONES)
-#define IWLOMAP_AVX2_CLONE __attribute__((target_clones("avx2", "default")))
+#define IWLOMAP_CPU_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
 #else
-#define IWLOMAP_AVX2_CLONE
+#define IWLOMAP_CPU_CLONES
 #endif
 
 /// One observation of a batch, ready to apply: its voxel and its row in the input, where the
