@@ -788,7 +788,7 @@ void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::Matri
   // Blocks and cells first, in the scratch's order, as the RAM backend does: the same layout, so
   // the two list voxels in the same order, and one allocation per block instead of one per cell.
   m.scratch.for_each_block(
-      [&](const VoxelKey& block_key, std::uint64_t cells) { m.grid.ensure_cells(acc.block(block_key), cells); });
+      [&](const VoxelKey& block_key, const detail::CellMask& cells) { m.grid.ensure_cells(acc.block(block_key), cells); });
   m.scratch.for_each_observation(
       [&](const VoxelKey& block_key, int index) {
         m.observe(acc.block(block_key), index, detail::voxel_of(block_key, index), 0.0, false, 1.0);

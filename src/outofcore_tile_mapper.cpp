@@ -611,7 +611,7 @@ struct OutofcoreTileMapper::Impl {
       const VoxelKey& key = batch[index_of(j)].key;
       detail::VoxelBlock& b = accessor_of(j).block(detail::block_of(key));
       const int index = detail::index_in_block(key);
-      tile_of(j).grid.ensure_cells(b, std::uint64_t{1} << (index >> 3));
+      tile_of(j).grid.ensure_cells(b, detail::CellMask::of(index >> detail::kCellShift));
       targets[j] = {&b, index};
     }
     const auto voxel = [this](std::size_t j) -> detail::Voxel& { return targets[j].first->existing(targets[j].second); };

@@ -105,13 +105,15 @@ struct ProbabilityUpdater::Impl {
             // scan's rows change block every two or three rows, and that branch mispredicted.
             detail::VoxelBlock& b = grid.get_or_create(keys.block(r), keys.slot(r));
             const int index = keys.index(r);
-            const std::uint64_t missing = (std::uint64_t{1} << (index >> 3)) & ~b.cell_mask;
+            const int cell = index >> detail::kCellShift;
+            const auto w = static_cast<std::size_t>(cell >> 6);
+            const std::uint64_t missing = (std::uint64_t{1} << (cell & 63)) & ~b.cell_mask.word[w];
             detail::Voxel* v = nullptr;
             if (missing != 0) {
-              const std::uint64_t before = b.pending;
-              b.pending = before | missing;
+              const bool first = !b.pending.any();  // the block's first missing cell
+              b.pending.word[w] |= missing;
               blocks[num_blocks] = &b;
-              num_blocks += before == 0 ? 1 : 0;  // the block's first missing cell
+              num_blocks += first ? 1 : 0;
             } else {
               v = &b.existing(index);
             }
@@ -120,11 +122,11 @@ struct ProbabilityUpdater::Impl {
         }
         for (std::size_t d = 0; d < num_blocks; ++d) {
           grid.ensure_cells(*blocks[d], blocks[d]->pending);
-          blocks[d]->pending = 0;
+          blocks[d]->pending = {};
         }
       } catch (...) {
         // Finding a block or allocating cells ran out of memory: no note may outlive the call.
-        for (std::size_t d = 0; d < num_blocks; ++d) blocks[d]->pending = 0;
+        for (std::size_t d = 0; d < num_blocks; ++d) blocks[d]->pending = {};
         throw;
       }
       if (num_blocks != 0) {
@@ -195,7 +197,7 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
   // Blocks are allocated first, on one thread and in scratch order whatever the thread count, so
   // that the map's iteration order does not depend on it either.
   m.scratch.for_each_block(
-      [&](const VoxelKey& block_key, std::uint64_t cells) { m.grid.ensure_cells(acc.block(block_key), cells); });
+      [&](const VoxelKey& block_key, const detail::CellMask& cells) { m.grid.ensure_cells(acc.block(block_key), cells); });
   if (t <= 1) {
     m.scratch.for_each_free(0, chunks, [&](const VoxelKey& block_key, int index) {
       detail::VoxelBlock& b = acc.block(block_key);

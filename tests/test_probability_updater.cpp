@@ -675,7 +675,7 @@ TEST(ProbabilityUpdater, ReportsMemoryWhenBlocksAllocated) {
   const MemoryStats one = map.get_memory_usage();
   EXPECT_EQ(one.num_nodes, 64u);
   EXPECT_EQ(one.num_leaf_nodes, 64u);
-  // One block, its 8 cells of 2^3 voxels (keys 0..3) all full: efficiency = 64 / 64.
+  // One block, its 16 cells of 2 x 2 x 1 voxels (keys 0..3) all full: efficiency = 64 / 64.
   EXPECT_DOUBLE_EQ(one.memory_efficiency, 1.0);
   EXPECT_GT(one.memory_mb, empty.memory_mb);
 
@@ -686,13 +686,13 @@ TEST(ProbabilityUpdater, ReportsMemoryWhenBlocksAllocated) {
   const MemoryStats many = map.get_memory_usage();
   EXPECT_EQ(many.num_nodes, 128u);
   EXPECT_EQ(many.num_leaf_nodes, map.get_num_nodes());
-  // 8 full cells and 64 cells of one known voxel each: efficiency = 128 / (72 * 8).
-  EXPECT_DOUBLE_EQ(many.memory_efficiency, 128.0 / (72.0 * 8.0));
+  // 16 full cells and 64 cells of one known voxel each: efficiency = 128 / (80 * 4).
+  EXPECT_DOUBLE_EQ(many.memory_efficiency, 128.0 / (80.0 * 4.0));
   EXPECT_GT(many.memory_efficiency, 0.0);
   EXPECT_LE(many.memory_efficiency, 1.0);
-  // At least the 65 block headers (32 bytes) and 72 cells of 8 voxels at 8 bytes are held; the
+  // At least the 65 block headers (32 bytes) and 80 cells of 4 voxels at 8 bytes are held; the
   // block index grew with the 64 new blocks.
-  EXPECT_GE(many.memory_mb, (65.0 * 32 + 72.0 * 8 * 8) / (1024.0 * 1024.0));
+  EXPECT_GE(many.memory_mb, (65.0 * 32 + 80.0 * 4 * 8) / (1024.0 * 1024.0));
   EXPECT_GT(many.memory_mb, one.memory_mb);
 }
 

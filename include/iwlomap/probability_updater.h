@@ -11,10 +11,10 @@
 namespace iwlomap {
 
 /// The in-memory backend. Voxels live in 8x8x8 blocks found through a hash map keyed by block
-/// coordinate; inside a block they are stored in 2x2x2 cells of 64 bytes, allocated the first time
-/// one of their voxels is observed, so a surface costs about what it covers and free space fills
-/// whole blocks. A voxel costs 8 bytes (float log-odds, uint16 observation count, 2 spare), a block
-/// a 104-byte header. Keys are int32, so a map at 0.05 m spans +-107,000 km. The memory of
+/// coordinate; inside a block they are stored in cells of 2x2x1 voxels (32 bytes, x by y by z),
+/// allocated the first time one of their voxels is observed, so a surface costs about what it
+/// covers and free space fills whole blocks. A voxel costs 8 bytes (float log-odds, uint16
+/// observation count, 2 spare), a block a 192-byte header. Keys are int32, so a map at 0.05 m spans +-107,000 km. The memory of
 /// destroyed maps (up to 64 MiB in all) is kept for the next map of the process, which then
 /// skips the kernel's first-touch cost.
 ///
@@ -63,7 +63,7 @@ class ProbabilityUpdater final : public IMapperBackend {
 
   /// memory_mb counts every byte the map holds: the slabs its block headers and cells are carved
   /// from, block table, hash index and the scratch buffers kept between scans.
-  /// memory_efficiency = known voxels / allocated voxel slots (8 per allocated cell).
+  /// memory_efficiency = known voxels / allocated voxel slots (4 per allocated cell).
   [[nodiscard]] MemoryStats get_memory_usage() const override;
   [[nodiscard]] double get_resolution() const override;
   [[nodiscard]] size_t get_num_nodes() const override;

@@ -103,11 +103,11 @@ VoxelBlock& BlockGrid::get_or_create_missed(const VoxelKey& block_key, std::size
   return *b;
 }
 
-void BlockGrid::add_cells(VoxelBlock& b, std::uint64_t added) {
+void BlockGrid::add_cells(VoxelBlock& b, const CellMask& added) {
   // New cells go to the end of the block's array, so no cell ever moves within it; the array
   // doubles when full (one copy of the cells, amortised below one per added cell).
   const int old_count = b.num_cells();
-  const int count = old_count + popcount64(added);
+  const int count = old_count + added.count();
   const int old_class = CellPool::class_of(old_count);
   const int new_class = CellPool::class_of(count);
   if (b.cells == nullptr || new_class != old_class) {
@@ -119,20 +119,20 @@ void BlockGrid::add_cells(VoxelBlock& b, std::uint64_t added) {
     b.cells = to;
   }
   int at = old_count;
-  for (std::uint64_t m = added; m != 0; m &= m - 1) {
+  added.for_each([&](int c) {
     new (&b.cells[at]) Cell{};
-    b.position[static_cast<std::size_t>(__builtin_ctzll(m))] = static_cast<std::uint8_t>(at);
+    b.position[static_cast<std::size_t>(c)] = static_cast<std::uint8_t>(at);
     ++at;
-  }
+  });
   b.cell_mask |= added;
   cells_ += static_cast<std::size_t>(count - old_count);
 }
 
 void BlockGrid::add_dense(const DenseBlock& dense) {
   VoxelBlock& b = get_or_create(dense.key);
-  std::uint64_t mask = 0;
+  CellMask mask;
   for (int i = 0; i < kBlockVoxels; ++i)
-    if (dense.voxels[static_cast<std::size_t>(i)].count != 0) mask |= std::uint64_t{1} << (i >> 3);
+    if (dense.voxels[static_cast<std::size_t>(i)].count != 0) mask |= CellMask::of(i >> kCellShift);
   ensure_cells(b, mask);
   b.for_each_slot([&](int i, const Voxel&) { b.existing(i) = dense.voxels[static_cast<std::size_t>(i)]; });
   b.known = dense.known;
@@ -147,21 +147,22 @@ std::size_t BlockGrid::prune() {
   for (VoxelBlock* b : blocks_) {
     if (b->known == 0) continue;
     // Keep the cells holding a known voxel.
-    std::uint64_t mask = 0;
+    CellMask mask;
     b->for_each_slot([&](int i, const Voxel& v) {
-      if (v.count != 0) mask |= std::uint64_t{1} << (i >> 3);
+      if (v.count != 0) mask |= CellMask::of(i >> kCellShift);
     });
     auto* copy = new (headers->allocate(sizeof(VoxelBlock), alignof(VoxelBlock))) VoxelBlock(b->key);
     copy->known = b->known;
     copy->cell_mask = mask;
-    const int n = popcount64(mask);
+    const int n = mask.count();
     copy->cells = pool->allocate(CellPool::class_of(n));
     int r = 0;
-    for (std::uint64_t m = mask; m != 0; m &= m - 1, ++r) {
-      const auto c = static_cast<std::size_t>(__builtin_ctzll(m));
+    mask.for_each([&](int cell) {
+      const auto c = static_cast<std::size_t>(cell);
       new (&copy->cells[r]) Cell(b->cells[b->position[c]]);
       copy->position[c] = static_cast<std::uint8_t>(r);
-    }
+      ++r;
+    });
     cells += static_cast<std::size_t>(n);
     kept.push_back(copy);
   }

@@ -1,20 +1,25 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #pragma once
 
-// The sparse block grid of the RAM backend (and of the Disk backend's tiles). Voxels live in 8^3
-// blocks found through a FlatKeyMap keyed by block coordinate; inside a block they are stored in
-// 2^3 cells (64 bytes, one cache line), allocated on first touch. A block keeps a 64-bit mask of
-// its allocated cells, one array holding them in the order they were allocated and a table of
-// their positions in it, so finding a voxel is one byte of the block header away, and a new cell
-// goes to the end of the array without moving the others (keeping the array in cell order and
-// finding cells by popcount took 1.23x the time to fill an empty map with a scan's points and
-// 1.12x to update them again).
+// The sparse block grid of the RAM backend (and of the Disk backend's tiles and the OctoMap
+// backend's working grid). Voxels live in 8^3 blocks found through a FlatKeyMap keyed by block
+// coordinate; inside a block they are stored in cells of 2 x 2 x 1 voxels (32 bytes), allocated
+// on first touch. A block keeps a 128-bit mask of its allocated cells, one array holding them in
+// the order they were allocated and a table of their positions in it, so finding a voxel is one
+// byte of the block header away, and a new cell goes to the end of the array without moving the
+// others (keeping the array in cell order and finding cells by popcount took 1.23x the time to
+// fill an empty map with a scan's points and 1.12x to update them again).
 //
 // Why cells: a surface (the endpoints of a scan, a sonar footprint) touches about ten voxels of
 // each 8^3 block it crosses; dense blocks made such maps cost 4 KiB a block and a page fault per
 // block, 3x OctoMap's memory, and filling an empty map was mostly the kernel handing out pages.
-// With cells the synthetic 65k-point scan takes 2.4 MiB instead of 19.6, while a block filled by
-// free space still costs 8 bytes a voxel plus a 104-byte header (2.5% more).
+// Why 2 x 2 x 1: the endpoint voxels of the synthetic 65k-point scan fill 35,865 cells of 2^3
+// voxels (2.19 MiB, 1.47 voxels a cell) but 37,697 of 2 x 2 x 1 (1.15 MiB), and those of a real
+// Ouster frame 44,701 against 53,283 (2.73 against 1.63 MiB); no 4-voxel shape does better on
+// either (the ground and most surfaces lie closer to horizontal than to vertical). The batch into
+// an empty map took 3.2 instead of 4.7 MiB with its headers and index, and 5-7% less time after
+// other work had evicted the caches (about the same with the caches warm). A block filled by free space still costs 8 bytes a voxel,
+// plus a 192-byte header (4.7% more).
 //
 // A voxel costs 8 bytes: float log-odds, uint16 count and 2 spare bytes. Log-odds and count share
 // a cache line, so an update costs one cache miss, not two (measured: the separate arrays of a
@@ -40,8 +45,9 @@ namespace iwlomap::detail {
 inline constexpr int kBlockShift = 3;
 inline constexpr int kBlockEdge = 1 << kBlockShift;                 // voxels along a block edge
 inline constexpr int kBlockVoxels = kBlockEdge * kBlockEdge * kBlockEdge;  // 512
-inline constexpr int kCellVoxels = 8;                               // a cell is 2 x 2 x 2 voxels
-inline constexpr int kBlockCells = kBlockVoxels / kCellVoxels;      // 64
+inline constexpr int kCellShift = 2;
+inline constexpr int kCellVoxels = 1 << kCellShift;                 // a cell is 2 x 2 x 1 voxels
+inline constexpr int kBlockCells = kBlockVoxels / kCellVoxels;      // 128
 
 // Arithmetic right shift is floor division by 8 for negative keys too (guaranteed by GCC and
 // Clang, and by the standard from C++20).
@@ -51,18 +57,19 @@ static_assert((-1 >> 1) == -1, "iwlomap needs arithmetic right shift of negative
   return {k.x >> kBlockShift, k.y >> kBlockShift, k.z >> kBlockShift};
 }
 
-// The index of a voxel inside its block is cell-major: bits 3..8 name the cell (x, y, z of the
-// cell, 2 bits each), bits 0..2 the voxel inside the cell. So the 8 voxels of a cell are 8
-// consecutive indices, and one byte of a 512-bit block mask (the scan scratch's) is one cell.
+// The index of a voxel inside its block is cell-major: bits 2..8 name the cell (x and y of the
+// cell 2 bits each, then z 3 bits), bits 0..1 the voxel inside the cell. So the 4 voxels of a
+// cell are 4 consecutive indices, and one nibble of a 512-bit block mask (the scan scratch's) is
+// one cell.
 [[nodiscard]] inline int index_in_block(const VoxelKey& k) noexcept {
-  const int cell = ((k.x >> 1) & 3) | (((k.y >> 1) & 3) << 2) | (((k.z >> 1) & 3) << 4);
-  return (cell << 3) | (k.x & 1) | ((k.y & 1) << 1) | ((k.z & 1) << 2);
+  const int cell = ((k.x >> 1) & 3) | (((k.y >> 1) & 3) << 2) | ((k.z & 7) << 4);
+  return (cell << kCellShift) | (k.x & 1) | ((k.y & 1) << 1);
 }
 [[nodiscard]] inline VoxelKey voxel_of(const VoxelKey& block, int index) noexcept {
-  const int cell = index >> 3;
+  const int cell = index >> kCellShift;
   return {block.x * kBlockEdge + ((cell & 3) << 1) + (index & 1),
           block.y * kBlockEdge + (((cell >> 2) & 3) << 1) + ((index >> 1) & 1),
-          block.z * kBlockEdge + ((cell >> 4) << 1) + ((index >> 2) & 1)};
+          block.z * kBlockEdge + (cell >> 4)};
 }
 
 /// Number of set bits. Without a -m flag that enables the popcnt instruction, GCC makes
@@ -78,14 +85,53 @@ static_assert((-1 >> 1) == -1, "iwlomap needs arithmetic right shift of negative
 #endif
 }
 
-/// The cells (bit c) holding any set bit of one 64-bit word of a 512-bit block mask in
-/// index_in_block() order: word w covers cells 8w .. 8w + 7, so the result is shifted by 8w.
-[[nodiscard]] inline std::uint64_t cells_of_mask_word(std::uint64_t word, int w) noexcept {
-  std::uint64_t t = word | (word >> 4);
-  t |= t >> 2;
+/// A set of the 128 cells of a block: bit c % 64 of word c / 64 is cell c.
+struct CellMask {
+  std::array<std::uint64_t, 2> word{};
+
+  [[nodiscard]] static CellMask of(int cell) noexcept {
+    CellMask m;
+    m.word[static_cast<std::size_t>(cell >> 6)] = std::uint64_t{1} << (cell & 63);
+    return m;
+  }
+  [[nodiscard]] bool any() const noexcept { return (word[0] | word[1]) != 0; }
+  [[nodiscard]] bool has(int cell) const noexcept {
+    return ((word[static_cast<std::size_t>(cell >> 6)] >> (cell & 63)) & 1u) != 0;
+  }
+  [[nodiscard]] int count() const noexcept { return popcount64(word[0]) + popcount64(word[1]); }
+  [[nodiscard]] CellMask without(const CellMask& o) const noexcept {  // this & ~o
+    CellMask m;
+    m.word[0] = word[0] & ~o.word[0];
+    m.word[1] = word[1] & ~o.word[1];
+    return m;
+  }
+  CellMask& operator|=(const CellMask& o) noexcept {
+    word[0] |= o.word[0];
+    word[1] |= o.word[1];
+    return *this;
+  }
+  /// Calls fn(cell) for every cell of the set, in increasing order.
+  template <class Fn>
+  void for_each(Fn&& fn) const {
+    for (std::size_t w = 0; w < word.size(); ++w)
+      for (std::uint64_t m = word[w]; m != 0; m &= m - 1) fn(static_cast<int>(w * 64) + __builtin_ctzll(m));
+  }
+};
+
+/// The cells holding any set bit of 64-bit word \p w of a 512-bit block mask in index_in_block()
+/// order: the word covers cells 16w .. 16w + 15, one nibble each.
+[[nodiscard]] inline CellMask cells_of_mask_word(std::uint64_t word, int w) noexcept {
+  std::uint64_t t = word | (word >> 2);
   t |= t >> 1;
-  t &= 0x0101010101010101ull;  // bit 0 of each byte: "this cell has a bit"
-  return ((t * 0x0102040810204080ull) >> 56) << (8 * w);  // gathers those 8 bits into one byte
+  t &= 0x1111111111111111ull;  // bit 0 of each nibble: "this cell has a bit"
+  // Gather the 16 bits at 4i into bits i: pairs, then fours, eights, sixteen.
+  t = (t | (t >> 3)) & 0x0303030303030303ull;
+  t = (t | (t >> 6)) & 0x000f000f000f000full;
+  t = (t | (t >> 12)) & 0x000000ff000000ffull;
+  t = (t | (t >> 24)) & 0xffffull;
+  CellMask m;
+  m.word[static_cast<std::size_t>(w >> 2)] = t << (16 * (w & 3));
+  return m;
 }
 
 struct Voxel {
@@ -95,47 +141,51 @@ struct Voxel {
 };
 static_assert(sizeof(Voxel) == 8, "a voxel must stay within 8 bytes");
 
-struct alignas(64) Cell {
+struct alignas(32) Cell {
   std::array<Voxel, kCellVoxels> voxels{};
 };
-static_assert(sizeof(Cell) == 64, "a cell is one cache line");
+static_assert(sizeof(Cell) == 32, "a cell is half a cache line");
 
-/// An 8^3 block: a header of 104 bytes; its cells live in one array owned by the grid's CellPool,
-/// in the order they were allocated, and a table gives each cell's position.
-struct VoxelBlock {
+/// An 8^3 block: a header of 192 bytes whose first cache line holds everything a batch looks at
+/// before it reaches a voxel (key, mask, cell array); its cells live in one array owned by the
+/// grid's CellPool, in the order they were allocated, and a table gives each cell's position.
+struct alignas(64) VoxelBlock {
   explicit VoxelBlock(const VoxelKey& k) : key(k) {}
   VoxelKey key;
-  std::uint32_t known = 0;       // voxels with count > 0
-  std::uint64_t cell_mask = 0;   // bit c: cell c is allocated
-  Cell* cells = nullptr;         // the allocated cells, popcount(cell_mask) of them
-  std::uint64_t pending = 0;     // cells a batch in progress needs (RAM backend); 0 between calls
-  std::array<std::uint8_t, kBlockCells> position{};  // of cell c in `cells`, when allocated
+  std::uint32_t known = 0;  // voxels with count > 0
+  CellMask cell_mask;       // the allocated cells
+  Cell* cells = nullptr;    // the allocated cells, cell_mask.count() of them
+  CellMask pending;         // cells a batch in progress needs (RAM backend); empty between calls
+  // Position of cell c in `cells`, when allocated; left uninitialised otherwise (a new block
+  // writes only its first cache line).
+  std::array<std::uint8_t, kBlockCells> position;
 
-  [[nodiscard]] int num_cells() const noexcept { return popcount64(cell_mask); }
-  [[nodiscard]] bool has_cell(int cell) const noexcept { return ((cell_mask >> cell) & 1u) != 0; }
+  [[nodiscard]] int num_cells() const noexcept { return cell_mask.count(); }
+  [[nodiscard]] bool has_cell(int cell) const noexcept { return cell_mask.has(cell); }
   /// The voxel at \p index; its cell must be allocated.
   [[nodiscard]] Voxel& existing(int index) noexcept {
-    return cells[position[static_cast<std::size_t>(index >> 3)]].voxels[static_cast<std::size_t>(index & 7)];
+    return cells[position[static_cast<std::size_t>(index >> kCellShift)]]
+        .voxels[static_cast<std::size_t>(index & (kCellVoxels - 1))];
   }
   [[nodiscard]] const Voxel& existing(int index) const noexcept {
-    return cells[position[static_cast<std::size_t>(index >> 3)]].voxels[static_cast<std::size_t>(index & 7)];
+    return cells[position[static_cast<std::size_t>(index >> kCellShift)]]
+        .voxels[static_cast<std::size_t>(index & (kCellVoxels - 1))];
   }
   /// The voxel at \p index, or nullptr when its cell is not allocated (so the voxel is unknown).
   [[nodiscard]] const Voxel* find(int index) const noexcept {
-    return has_cell(index >> 3) ? &existing(index) : nullptr;
+    return has_cell(index >> kCellShift) ? &existing(index) : nullptr;
   }
   /// Calls fn(index, voxel) for every voxel of every allocated cell (unknown ones included), in
   /// index order.
   template <class Fn>
   void for_each_slot(Fn&& fn) const {
-    for (std::uint64_t m = cell_mask; m != 0; m &= m - 1) {
-      const int c = __builtin_ctzll(m);
+    cell_mask.for_each([&](int c) {
       const Cell& cell = cells[position[static_cast<std::size_t>(c)]];
       for (int v = 0; v < kCellVoxels; ++v) fn(c * kCellVoxels + v, cell.voxels[static_cast<std::size_t>(v)]);
-    }
+    });
   }
 };
-static_assert(sizeof(VoxelBlock) == 104, "a block header is 104 bytes");
+static_assert(sizeof(VoxelBlock) == 192, "a block header is 192 bytes");
 
 /// A block with all 512 voxels in place (index_in_block() order), for reading and writing tile
 /// files.
@@ -205,13 +255,13 @@ class SlabArena {
   std::size_t bytes_ = 0;     // all slabs
 };
 
-/// Storage of the cell arrays of blocks: arrays of 1, 2, 4, ..., 64 cells (size class k holds 2^k
+/// Storage of the cell arrays of blocks: arrays of 1, 2, 4, ..., 128 cells (size class k holds 2^k
 /// cells). A block's array grows to the next class when a cell is added to a full one (one copy
 /// of its cells); the old array goes to a free list of its class and is reused by the next array
 /// of that size.
 class CellPool {
  public:
-  static constexpr int kClasses = 7;
+  static constexpr int kClasses = 8;
   [[nodiscard]] static int class_of(int cells) noexcept {  // smallest class holding \p cells (>= 1)
     return cells <= 1 ? 0 : 32 - __builtin_clz(static_cast<unsigned>(cells - 1));
   }
@@ -275,15 +325,16 @@ class BlockGrid {
   /// Allocates the cells of \p mask that \p b lacks (zero-filled); returns whether there were
   /// any. When b's array grows, its cells move: a Voxel pointer or reference into b taken before
   /// may be invalid afterwards.
-  bool ensure_cells(VoxelBlock& b, std::uint64_t mask) {
-    if ((mask & ~b.cell_mask) == 0) return false;
-    add_cells(b, mask & ~b.cell_mask);
+  bool ensure_cells(VoxelBlock& b, const CellMask& mask) {
+    const CellMask added = mask.without(b.cell_mask);
+    if (!added.any()) return false;
+    add_cells(b, added);
     return true;
   }
 
   /// Voxel \p index of \p b, allocating its cell if needed (which may move b's other cells).
   Voxel& voxel(VoxelBlock& b, int index) {
-    ensure_cells(b, std::uint64_t{1} << (index >> 3));
+    ensure_cells(b, CellMask::of(index >> kCellShift));
     return b.existing(index);
   }
 
@@ -293,7 +344,7 @@ class BlockGrid {
 
   [[nodiscard]] const std::vector<VoxelBlock*>& blocks() const noexcept { return blocks_; }
   [[nodiscard]] std::size_t num_blocks() const noexcept { return blocks_.size(); }
-  /// Voxel slots allocated (8 per cell).
+  /// Voxel slots allocated (kCellVoxels per cell).
   [[nodiscard]] std::size_t num_slots() const noexcept { return cells_ * kCellVoxels; }
 
   /// Drops blocks and cells without known voxels (copying the rest into fresh slabs, so the
@@ -311,7 +362,7 @@ class BlockGrid {
   }
 
  private:
-  void add_cells(VoxelBlock& b, std::uint64_t added);
+  void add_cells(VoxelBlock& b, const CellMask& added);
 
   // A direct-mapped cache of recently used blocks in front of the index: a scan's points run
   // along rings, and a ring comes back to the blocks of the previous ring about a thousand points

@@ -51,8 +51,8 @@ class ScanScratch {
   std::size_t collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                       const Eigen::VectorXd& intensities, double max_range, double resolution, int threads = 1);
 
-  /// Calls fn(block_key, cell_mask) for every grid block (8^3) that holds an observation, free or
-  /// hit, with bit c of cell_mask set for each 2^3 cell c of the block (see index_in_block()) that
+  /// Calls fn(block_key, cells) for every grid block (8^3) that holds an observation, free or
+  /// hit, with \p cells (a CellMask) holding each cell of the block (see index_in_block()) that
   /// holds one, in (z, y, x) order of chunk keys: an order that depends on the scan only, never on
   /// which thread cast which ray, so backends that allocate blocks and cells in this order stay
   /// identical for any thread count.
@@ -68,12 +68,12 @@ class ScanScratch {
     for (const std::size_t ci : order) {
       const Chunk& c = chunks_[ci];
       for (int b = 0; b < kBlocksPerChunk; ++b) {
-        std::uint64_t cells = 0;
+        CellMask cells;
         for (int w = 0; w < kWordsPerBlock; ++w) {
           const std::size_t word = static_cast<std::size_t>(b * kWordsPerBlock + w);
           cells |= cells_of_mask_word(c.free[word] | c.hit[word], w);
         }
-        if (cells != 0) fn(block_key_of(c, b), cells);
+        if (cells.any()) fn(block_key_of(c, b), cells);
       }
     }
   }
