@@ -72,7 +72,7 @@ struct ProbabilityUpdater::Impl {
   // (std::bad_alloc) the groups before the failing one stay applied; the map stays consistent
   // (voxel states, counts, skipped rows). Compiled per CPU level (IWLOMAP_CPU_CLONES) with
   // everything it inlines: the x86-64-v4 copy filled an empty map with the synthetic scan's batch
-  // about 3% faster here.
+  // 3-5% faster here (docs/benchmarks.md, sixth session).
   IWLOMAP_CPU_CLONES void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                    const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights) {
     const std::size_t skip = detail::validate_batch(points, intensities, is_occupied, weights, resolution);
