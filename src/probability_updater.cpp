@@ -14,6 +14,7 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <exception>
 #include <stdexcept>
 #include <thread>
 
@@ -70,77 +71,91 @@ struct ProbabilityUpdater::Impl {
   // scan's batch into an empty map); then the updates, with the voxel of a later row prefetched,
   // which hides most cache misses on large maps. The price: when memory runs out
   // (std::bad_alloc) the groups before the failing one stay applied; the map stays consistent
-  // (voxel states, counts, skipped rows). Compiled per CPU level (IWLOMAP_CPU_CLONES) with
-  // everything it inlines: the x86-64-v4 copy filled an empty map with the synthetic scan's batch
-  // 3-5% faster here (docs/benchmarks.md, sixth session).
-  IWLOMAP_CPU_CLONES void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+  // (voxel states, counts, skipped rows).
+  void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                    const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights) {
     const std::size_t skip = detail::validate_batch(points, intensities, is_occupied, weights, resolution);
-    const detail::BatchValues in{intensities, is_occupied, weights};
-    const detail::FloorDivider divide(resolution);
-    const Eigen::Index n = points.rows();
-    if (n == 0) return;
-    BatchScratch& work = batch_scratch();
-    detail::ChunkKeys& keys = work.keys;
-    auto& targets = work.targets;
-    auto& blocks = work.blocks;
-    constexpr auto kGroupRows = static_cast<Eigen::Index>(BatchScratch::kGroupRows);
-    constexpr auto kChunkRows = static_cast<Eigen::Index>(BatchScratch::kChunkRows);
-    for (Eigen::Index group = 0; group < n; group += kGroupRows) {
-      const Eigen::Index group_end = std::min<Eigen::Index>(n, group + kGroupRows);
-      std::size_t count = 0;
-      std::size_t num_blocks = 0;     // blocks with cells to add, in `blocks`
-      std::size_t group_skipped = 0;  // added to `skipped` once the group is applied
-      try {
-        for (Eigen::Index begin = group; begin < group_end; begin += kChunkRows) {
-          const Eigen::Index end = std::min<Eigen::Index>(group_end, begin + kChunkRows);
-          keys.compute_blocks(points, begin, static_cast<std::size_t>(end - begin), divide);
-          for (Eigen::Index i = begin; i < end; ++i) {
-            const auto r = static_cast<std::size_t>(i - begin);
-            if (skip != 0 && !detail::row_is_finite(points, intensities, i)) {
-              ++group_skipped;
-              continue;
+    if (points.rows() == 0) return;
+    if (const std::exception_ptr e = apply_rows(points, intensities, is_occupied, weights, skip))
+      std::rethrow_exception(e);
+  }
+
+  // apply_batch() after the validation, \p skip rows being skipped. Compiled per CPU level
+  // (IWLOMAP_CPU_CLONES) with everything it inlines: the x86-64-v4 copy filled an empty map with
+  // the synthetic scan's batch 3-5% faster here (docs/benchmarks.md, sixth session). Like every
+  // function with such copies it lets no exception out (see IWLOMAP_CPU_CLONES): it returns it.
+  IWLOMAP_CPU_CLONES std::exception_ptr apply_rows(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                                                   const std::vector<bool>& is_occupied,
+                                                   const Eigen::VectorXd* weights, std::size_t skip) noexcept {
+    try {
+      const detail::BatchValues in{intensities, is_occupied, weights};
+      const detail::FloorDivider divide(resolution);
+      const Eigen::Index n = points.rows();
+      BatchScratch& work = batch_scratch();
+      detail::ChunkKeys& keys = work.keys;
+      auto& targets = work.targets;
+      auto& blocks = work.blocks;
+      constexpr auto kGroupRows = static_cast<Eigen::Index>(BatchScratch::kGroupRows);
+      constexpr auto kChunkRows = static_cast<Eigen::Index>(BatchScratch::kChunkRows);
+      for (Eigen::Index group = 0; group < n; group += kGroupRows) {
+        const Eigen::Index group_end = std::min<Eigen::Index>(n, group + kGroupRows);
+        std::size_t count = 0;
+        std::size_t num_blocks = 0;     // blocks with cells to add, in `blocks`
+        std::size_t group_skipped = 0;  // added to `skipped` once the group is applied
+        try {
+          for (Eigen::Index begin = group; begin < group_end; begin += kChunkRows) {
+            const Eigen::Index end = std::min<Eigen::Index>(group_end, begin + kChunkRows);
+            keys.compute_blocks(points, begin, static_cast<std::size_t>(end - begin), divide);
+            for (Eigen::Index i = begin; i < end; ++i) {
+              const auto r = static_cast<std::size_t>(i - begin);
+              if (skip != 0 && !detail::row_is_finite(points, intensities, i)) {
+                ++group_skipped;
+                continue;
+              }
+              // Straight to the grid's cache of recent blocks, not through a last-block accessor: a
+              // scan's rows change block every two or three rows, and that branch mispredicted.
+              detail::VoxelBlock& b = grid.get_or_create(keys.block(r), keys.slot(r));
+              const int index = keys.index(r);
+              const int cell = index >> detail::kCellShift;
+              const auto w = static_cast<std::size_t>(cell >> 6);
+              const std::uint64_t missing = (std::uint64_t{1} << (cell & 63)) & ~b.cell_mask.word[w];
+              detail::Voxel* v = nullptr;
+              if (missing != 0) {
+                const bool first = !b.pending.any();  // the block's first missing cell
+                b.pending.word[w] |= missing;
+                blocks[num_blocks] = &b;
+                num_blocks += first ? 1 : 0;
+              } else {
+                v = &b.existing(index);
+              }
+              targets[count++] = {&b, v, index, static_cast<std::uint32_t>(i)};
             }
-            // Straight to the grid's cache of recent blocks, not through a last-block accessor: a
-            // scan's rows change block every two or three rows, and that branch mispredicted.
-            detail::VoxelBlock& b = grid.get_or_create(keys.block(r), keys.slot(r));
-            const int index = keys.index(r);
-            const int cell = index >> detail::kCellShift;
-            const auto w = static_cast<std::size_t>(cell >> 6);
-            const std::uint64_t missing = (std::uint64_t{1} << (cell & 63)) & ~b.cell_mask.word[w];
-            detail::Voxel* v = nullptr;
-            if (missing != 0) {
-              const bool first = !b.pending.any();  // the block's first missing cell
-              b.pending.word[w] |= missing;
-              blocks[num_blocks] = &b;
-              num_blocks += first ? 1 : 0;
-            } else {
-              v = &b.existing(index);
-            }
-            targets[count++] = {&b, v, index, static_cast<std::uint32_t>(i)};
           }
+          for (std::size_t d = 0; d < num_blocks; ++d) {
+            grid.ensure_cells(*blocks[d], blocks[d]->pending);
+            blocks[d]->pending = {};
+          }
+        } catch (...) {
+          // Finding a block or allocating cells ran out of memory: no note may outlive the call.
+          for (std::size_t d = 0; d < num_blocks; ++d) blocks[d]->pending = {};
+          throw;
         }
-        for (std::size_t d = 0; d < num_blocks; ++d) {
-          grid.ensure_cells(*blocks[d], blocks[d]->pending);
-          blocks[d]->pending = {};
+        if (num_blocks != 0) {
+          // Adding cells to a block may have moved its cells: take every address again.
+          for (std::size_t j = 0; j < count; ++j) targets[j].voxel = &targets[j].block->existing(targets[j].index);
         }
-      } catch (...) {
-        // Finding a block or allocating cells ran out of memory: no note may outlive the call.
-        for (std::size_t d = 0; d < num_blocks; ++d) blocks[d]->pending = {};
-        throw;
+        constexpr std::size_t kAhead = 64;
+        for (std::size_t j = 0; j < count; ++j) {
+          if (j + kAhead < count) __builtin_prefetch(targets[j + kAhead].voxel, 1);
+          const BatchScratch::Target& t = targets[j];
+          apply_voxel(*t.block, *t.voxel, in.intensity(t.row), in.occupied_flag(t.row), in.weight(t.row));
+        }
+        skipped += group_skipped;
       }
-      if (num_blocks != 0) {
-        // Adding cells to a block may have moved its cells: take every address again.
-        for (std::size_t j = 0; j < count; ++j) targets[j].voxel = &targets[j].block->existing(targets[j].index);
-      }
-      constexpr std::size_t kAhead = 64;
-      for (std::size_t j = 0; j < count; ++j) {
-        if (j + kAhead < count) __builtin_prefetch(targets[j + kAhead].voxel, 1);
-        const BatchScratch::Target& t = targets[j];
-        apply_voxel(*t.block, *t.voxel, in.intensity(t.row), in.occupied_flag(t.row), in.weight(t.row));
-      }
-      skipped += group_skipped;
+    } catch (...) {
+      return std::current_exception();
     }
+    return nullptr;
   }
 
   void set(const IwloParams& p) { updater = iwlo::Updater(p); }

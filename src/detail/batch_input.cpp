@@ -61,7 +61,7 @@ std::int64_t bits_of(double d) {
 // fine too, but goes the slow way).
 IWLOMAP_CPU_CLONES
 bool all_rows_plain(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities, const Eigen::VectorXd* weights,
-                    double safe) {
+                    double safe) noexcept {
   const Eigen::Index n = points.rows();
   if (n == 0) return true;
   const double* x = points.col(0).data();
@@ -86,13 +86,15 @@ bool all_rows_plain(const Eigen::MatrixXd& points, const Eigen::VectorXd& intens
 }  // namespace
 
 IWLOMAP_CPU_CLONES
-void ChunkKeys::compute(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide) {
+void ChunkKeys::compute(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows,
+                        const FloorDivider& divide) noexcept {
   for (std::size_t c = 0; c < 3; ++c)
     divide.floor_many(points.col(static_cast<Eigen::Index>(c)).data() + begin, rows, axis_[c].data(), flags_.data());
 }
 
 IWLOMAP_CPU_CLONES
-void ChunkKeys::compute_blocks(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide) {
+void ChunkKeys::compute_blocks(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows,
+                               const FloorDivider& divide) noexcept {
   compute(points, begin, rows, divide);
   for (std::size_t r = 0; r < rows; ++r) {
     const VoxelKey k{static_cast<std::int32_t>(axis_[0][r]), static_cast<std::int32_t>(axis_[1][r]),

@@ -22,8 +22,11 @@ namespace iwlomap::detail {
 // levels beside the baseline one, chosen at load time on x86-64 (GCC and Clang build them all and
 // the loader picks by CPU): vectorised loops run 4 or 8 doubles wide, and scalar code gets the
 // newer bit instructions. The results are the same in every copy (integer arithmetic, and the
-// library's floating-point flags forbid contraction into fused multiply-adds). Not under
-// ThreadSanitizer: the loader runs the chooser (an ifunc resolver) before the sanitizer's runtime
+// library's floating-point flags forbid contraction into fused multiply-adds). Such a function
+// must let no exception out: GCC 12 takes the call through the loader's choice for one that cannot
+// throw, and an exception leaving a copy ended the program (std::terminate) wherever the caller
+// had something to clean up. So they are noexcept, and those that can fail catch everything and
+// return it as a std::exception_ptr for a plain caller to rethrow. Not under ThreadSanitizer: the loader runs the chooser (an ifunc resolver) before the sanitizer's runtime
 // is up, and the instrumented chooser crashed every test program at start.
 #if defined(__has_feature)
 #if __has_feature(thread_sanitizer)
@@ -148,10 +151,11 @@ class ChunkKeys {
   static constexpr std::size_t kRows = 512;
 
   /// Keys of rows [begin, begin + rows), rows <= kRows.
-  void compute(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide);
+  void compute(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide) noexcept;
   /// compute(), and also every row's block, index in its block and slot of the block grid's
   /// cache of recent blocks, in one vectorised pass (for the RAM backend's block grid).
-  void compute_blocks(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide);
+  void compute_blocks(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows,
+                      const FloorDivider& divide) noexcept;
   /// The key of row begin + r (meaningful for finite rows only).
   [[nodiscard]] VoxelKey operator[](std::size_t r) const {
     return {static_cast<std::int32_t>(axis_[0][r]), static_cast<std::int32_t>(axis_[1][r]),
