@@ -163,7 +163,8 @@ std::size_t prepare_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& 
   // it made every point wait for a store-forwarding stall (three narrow stores, one wide load).
   out.resize(static_cast<std::size_t>(n) - skipped);
   const FloorDivider divide(resolution);
-  const auto keys = std::make_unique<ChunkKeys>();
+  // Default-initialised (not make_unique's zeroing of 26 KiB): compute() writes what is read.
+  const std::unique_ptr<ChunkKeys> keys(new ChunkKeys);
   std::size_t kept = 0;
   for (Eigen::Index begin = 0; begin < n; begin += static_cast<Eigen::Index>(ChunkKeys::kRows)) {
     const auto rows = static_cast<std::size_t>(std::min<Eigen::Index>(n - begin, ChunkKeys::kRows));
