@@ -84,76 +84,80 @@ struct ProbabilityUpdater::Impl {
   // (IWLOMAP_CPU_CLONES) with everything it inlines: the x86-64-v4 copy filled an empty map with
   // the synthetic scan's batch 3-5% faster here (docs/benchmarks.md, sixth session). Like every
   // function with such copies it lets no exception out (see IWLOMAP_CPU_CLONES): it returns it.
+  // Only the parts that can fail run inside a try: one around the whole body made the copy spill
+  // values in the update loop (the same batch again 0.61-0.64 instead of 0.51-0.55 ms).
   IWLOMAP_CPU_CLONES std::exception_ptr apply_rows(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                                                    const std::vector<bool>& is_occupied,
                                                    const Eigen::VectorXd* weights, std::size_t skip) noexcept {
+    const detail::BatchValues in{intensities, is_occupied, weights};
+    const detail::FloorDivider divide(resolution);
+    const Eigen::Index n = points.rows();
+    BatchScratch* scratch_of_thread = nullptr;
     try {
-      const detail::BatchValues in{intensities, is_occupied, weights};
-      const detail::FloorDivider divide(resolution);
-      const Eigen::Index n = points.rows();
-      BatchScratch& work = batch_scratch();
-      detail::ChunkKeys& keys = work.keys;
-      auto& targets = work.targets;
-      auto& blocks = work.blocks;
-      constexpr auto kGroupRows = static_cast<Eigen::Index>(BatchScratch::kGroupRows);
-      constexpr auto kChunkRows = static_cast<Eigen::Index>(BatchScratch::kChunkRows);
-      for (Eigen::Index group = 0; group < n; group += kGroupRows) {
-        const Eigen::Index group_end = std::min<Eigen::Index>(n, group + kGroupRows);
-        std::size_t count = 0;
-        std::size_t num_blocks = 0;     // blocks with cells to add, in `blocks`
-        std::size_t group_skipped = 0;  // added to `skipped` once the group is applied
-        try {
-          for (Eigen::Index begin = group; begin < group_end; begin += kChunkRows) {
-            const Eigen::Index end = std::min<Eigen::Index>(group_end, begin + kChunkRows);
-            keys.compute_blocks(points, begin, static_cast<std::size_t>(end - begin), divide);
-            for (Eigen::Index i = begin; i < end; ++i) {
-              const auto r = static_cast<std::size_t>(i - begin);
-              if (skip != 0 && !detail::row_is_finite(points, intensities, i)) {
-                ++group_skipped;
-                continue;
-              }
-              // Straight to the grid's cache of recent blocks, not through a last-block accessor: a
-              // scan's rows change block every two or three rows, and that branch mispredicted.
-              detail::VoxelBlock& b = grid.get_or_create(keys.block(r), keys.slot(r));
-              const int index = keys.index(r);
-              const int cell = index >> detail::kCellShift;
-              const auto w = static_cast<std::size_t>(cell >> 6);
-              const std::uint64_t missing = (std::uint64_t{1} << (cell & 63)) & ~b.cell_mask.word[w];
-              detail::Voxel* v = nullptr;
-              if (missing != 0) {
-                const bool first = !b.pending.any();  // the block's first missing cell
-                b.pending.word[w] |= missing;
-                blocks[num_blocks] = &b;
-                num_blocks += first ? 1 : 0;
-              } else {
-                v = &b.existing(index);
-              }
-              targets[count++] = {&b, v, index, static_cast<std::uint32_t>(i)};
-            }
-          }
-          for (std::size_t d = 0; d < num_blocks; ++d) {
-            grid.ensure_cells(*blocks[d], blocks[d]->pending);
-            blocks[d]->pending = {};
-          }
-        } catch (...) {
-          // Finding a block or allocating cells ran out of memory: no note may outlive the call.
-          for (std::size_t d = 0; d < num_blocks; ++d) blocks[d]->pending = {};
-          throw;
-        }
-        if (num_blocks != 0) {
-          // Adding cells to a block may have moved its cells: take every address again.
-          for (std::size_t j = 0; j < count; ++j) targets[j].voxel = &targets[j].block->existing(targets[j].index);
-        }
-        constexpr std::size_t kAhead = 64;
-        for (std::size_t j = 0; j < count; ++j) {
-          if (j + kAhead < count) __builtin_prefetch(targets[j + kAhead].voxel, 1);
-          const BatchScratch::Target& t = targets[j];
-          apply_voxel(*t.block, *t.voxel, in.intensity(t.row), in.occupied_flag(t.row), in.weight(t.row));
-        }
-        skipped += group_skipped;
-      }
+      scratch_of_thread = &batch_scratch();
     } catch (...) {
       return std::current_exception();
+    }
+    BatchScratch& work = *scratch_of_thread;
+    detail::ChunkKeys& keys = work.keys;
+    auto& targets = work.targets;
+    auto& blocks = work.blocks;
+    constexpr auto kGroupRows = static_cast<Eigen::Index>(BatchScratch::kGroupRows);
+    constexpr auto kChunkRows = static_cast<Eigen::Index>(BatchScratch::kChunkRows);
+    for (Eigen::Index group = 0; group < n; group += kGroupRows) {
+      const Eigen::Index group_end = std::min<Eigen::Index>(n, group + kGroupRows);
+      std::size_t count = 0;
+      std::size_t num_blocks = 0;     // blocks with cells to add, in `blocks`
+      std::size_t group_skipped = 0;  // added to `skipped` once the group is applied
+      try {
+        for (Eigen::Index begin = group; begin < group_end; begin += kChunkRows) {
+          const Eigen::Index end = std::min<Eigen::Index>(group_end, begin + kChunkRows);
+          keys.compute_blocks(points, begin, static_cast<std::size_t>(end - begin), divide);
+          for (Eigen::Index i = begin; i < end; ++i) {
+            const auto r = static_cast<std::size_t>(i - begin);
+            if (skip != 0 && !detail::row_is_finite(points, intensities, i)) {
+              ++group_skipped;
+              continue;
+            }
+            // Straight to the grid's cache of recent blocks, not through a last-block accessor: a
+            // scan's rows change block every two or three rows, and that branch mispredicted.
+            detail::VoxelBlock& b = grid.get_or_create(keys.block(r), keys.slot(r));
+            const int index = keys.index(r);
+            const int cell = index >> detail::kCellShift;
+            const auto w = static_cast<std::size_t>(cell >> 6);
+            const std::uint64_t missing = (std::uint64_t{1} << (cell & 63)) & ~b.cell_mask.word[w];
+            detail::Voxel* v = nullptr;
+            if (missing != 0) {
+              const bool first = !b.pending.any();  // the block's first missing cell
+              b.pending.word[w] |= missing;
+              blocks[num_blocks] = &b;
+              num_blocks += first ? 1 : 0;
+            } else {
+              v = &b.existing(index);
+            }
+            targets[count++] = {&b, v, index, static_cast<std::uint32_t>(i)};
+          }
+        }
+        for (std::size_t d = 0; d < num_blocks; ++d) {
+          grid.ensure_cells(*blocks[d], blocks[d]->pending);
+          blocks[d]->pending = {};
+        }
+      } catch (...) {
+        // Finding a block or allocating cells ran out of memory: no note may outlive the call.
+        for (std::size_t d = 0; d < num_blocks; ++d) blocks[d]->pending = {};
+        return std::current_exception();
+      }
+      if (num_blocks != 0) {
+        // Adding cells to a block may have moved its cells: take every address again.
+        for (std::size_t j = 0; j < count; ++j) targets[j].voxel = &targets[j].block->existing(targets[j].index);
+      }
+      constexpr std::size_t kAhead = 64;
+      for (std::size_t j = 0; j < count; ++j) {
+        if (j + kAhead < count) __builtin_prefetch(targets[j + kAhead].voxel, 1);
+        const BatchScratch::Target& t = targets[j];
+        apply_voxel(*t.block, *t.voxel, in.intensity(t.row), in.occupied_flag(t.row), in.weight(t.row));
+      }
+      skipped += group_skipped;
     }
     return nullptr;
   }
