@@ -147,15 +147,30 @@ struct ProbabilityUpdater::Impl {
         for (std::size_t d = 0; d < num_blocks; ++d) blocks[d]->pending = {};
         return std::current_exception();
       }
-      if (num_blocks != 0) {
-        // Adding cells to a block may have moved its cells: take every address again.
-        for (std::size_t j = 0; j < count; ++j) targets[j].voxel = &targets[j].block->existing(targets[j].index);
-      }
+      // The updates, with the voxel kAhead rows ahead prefetched. When cells were added, they may
+      // have moved their block's cells: every address is taken again, kAhead rows ahead (a pass of
+      // its own over the rows before the updates made the batch into an empty map about 2% slower,
+      // and so did one loop for both cases).
       constexpr std::size_t kAhead = 64;
-      for (std::size_t j = 0; j < count; ++j) {
-        if (j + kAhead < count) __builtin_prefetch(targets[j + kAhead].voxel, 1);
-        const BatchScratch::Target& t = targets[j];
+      const auto update = [&](const BatchScratch::Target& t) {
         apply_voxel(*t.block, *t.voxel, in.intensity(t.row), in.occupied_flag(t.row), in.weight(t.row));
+      };
+      if (num_blocks != 0) {
+        for (std::size_t j = 0; j < std::min(count, kAhead); ++j)
+          targets[j].voxel = &targets[j].block->existing(targets[j].index);
+        for (std::size_t j = 0; j < count; ++j) {
+          if (j + kAhead < count) {
+            BatchScratch::Target& ahead = targets[j + kAhead];
+            ahead.voxel = &ahead.block->existing(ahead.index);
+            __builtin_prefetch(ahead.voxel, 1);
+          }
+          update(targets[j]);
+        }
+      } else {
+        for (std::size_t j = 0; j < count; ++j) {
+          if (j + kAhead < count) __builtin_prefetch(targets[j + kAhead].voxel, 1);
+          update(targets[j]);
+        }
       }
       skipped += group_skipped;
     }
