@@ -718,6 +718,33 @@ TEST(ProbabilityUpdater, PutsPointsInVoxelOfWorldToKeyAtKeyRangeEndsAndExtremeRe
   }
 }
 
+// The batch path derives blocks from the coordinates in one pass per chunk of 512 rows and sends a
+// chunk holding a value on (or within rounding of) a voxel face through the exact division; both
+// kinds of chunk, side by side, must give world_to_key()'s voxels.
+TEST(ProbabilityUpdater, PutsPointsOnAndBetweenVoxelFacesInVoxelOfWorldToKey) {
+  const double r = 0.1;
+  std::mt19937 rng(23u);
+  std::uniform_real_distribution<double> pos(-30.0, 30.0);
+  std::uniform_int_distribution<int> face(-300, 300);
+  const Eigen::Index n = 5 * 512 + 37;
+  Eigen::MatrixXd pts(n, 3);
+  std::map<VoxelKey, std::uint32_t> expected;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const Eigen::Index chunk = i / 512;
+    // Chunks 1 and 3 hold faces (k * 0.1, whose quotient lies within rounding of k) every 7th row.
+    if ((chunk == 1 || chunk == 3) && i % 7 == 0)
+      pts.row(i) << face(rng) * r, face(rng) * r, face(rng) * r;
+    else
+      pts.row(i) << pos(rng), pos(rng), pos(rng);
+    ++expected[world_to_key(pts.row(i).transpose(), r)];
+  }
+  ProbabilityUpdater map(r);
+  map.batch_update_iwlo(pts, Eigen::VectorXd::Constant(n, 200.0), std::vector<bool>(static_cast<std::size_t>(n), true));
+  std::map<VoxelKey, std::uint32_t> got;
+  for (const auto& [k, v] : snapshot(map)) got[k] = v.second;
+  EXPECT_EQ(got, expected);
+}
+
 // Maps reuse the memory of destroyed maps (see block_grid.cpp): nothing of an old map may show.
 TEST(ProbabilityUpdater, StartsEmptyWhenMemoryOfDestroyedMapsIsReused) {
   std::mt19937 rng(11u);
