@@ -631,7 +631,8 @@ struct OutofcoreTileMapper::Impl {
         const auto w = static_cast<std::size_t>(cell >> 6);
         const std::uint64_t missing = (std::uint64_t{1} << (cell & 63)) & ~b.cell_mask.word[w];
         if (missing != 0) {
-          if (!b.pending.any()) pending_blocks.emplace_back(&b, &tile_of(j).grid);  // before the note: it may throw
+          // Listed before the note is made: emplace_back may throw.
+          if (!b.pending.any()) pending_blocks.emplace_back(&b, &tile_of(j).grid);
           b.pending.word[w] |= missing;
         }
         targets[j] = {&b, index};
@@ -1005,7 +1006,8 @@ struct OutofcoreTileMapper::Impl {
   detail::ScanScratch scratch;
   std::vector<detail::Observation> batch;
   std::vector<std::pair<detail::VoxelBlock*, int>> targets;  // block and index_in_block
-  std::vector<std::pair<detail::VoxelBlock*, detail::BlockGrid*>> pending_blocks;  // with cells to add, and their tile's grid
+  // Blocks with cells to add during a batch, and their tile's grid.
+  std::vector<std::pair<detail::VoxelBlock*, detail::BlockGrid*>> pending_blocks;
   Routing routing;
   std::vector<std::vector<std::size_t>> slot_chunks;
   std::vector<std::size_t> slot_last_chunk;

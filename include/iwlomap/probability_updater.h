@@ -14,9 +14,9 @@ namespace iwlomap {
 /// coordinate; inside a block they are stored in cells of 2x2x1 voxels (32 bytes, x by y by z),
 /// allocated the first time one of their voxels is observed, so a surface costs about what it
 /// covers and free space fills whole blocks. A voxel costs 8 bytes (float log-odds, uint16
-/// observation count, 2 spare), a block a 192-byte header. Keys are int32, so a map at 0.05 m spans +-107,000 km. The memory of
-/// destroyed maps (up to 64 MiB in all) is kept for the next map of the process, which then
-/// skips the kernel's first-touch cost.
+/// observation count, 2 spare), a block a 192-byte header. Keys are int32, so a map at 0.05 m
+/// spans +-107,000 km. The memory of destroyed maps (up to 64 MiB in all) is kept for the next
+/// map of the process, which then skips the kernel's first-touch cost.
 ///
 /// Not thread-safe: one thread at a time may call a mutating method; const methods may run
 /// concurrently with each other. Non-copyable, movable; a moved-from object throws

@@ -26,8 +26,9 @@ namespace iwlomap::detail {
 // must let no exception out: GCC 12 takes the call through the loader's choice for one that cannot
 // throw, and an exception leaving a copy ended the program (std::terminate) wherever the caller
 // had something to clean up. So they are noexcept, and those that can fail catch everything and
-// return it as a std::exception_ptr for a plain caller to rethrow. Not under ThreadSanitizer: the loader runs the chooser (an ifunc resolver) before the sanitizer's runtime
-// is up, and the instrumented chooser crashed every test program at start.
+// return it as a std::exception_ptr for a plain caller to rethrow. Not under ThreadSanitizer: the
+// loader runs the chooser (an ifunc resolver) before the sanitizer's runtime is up, and the
+// instrumented chooser crashed every test program at start.
 #if defined(__has_feature)
 #if __has_feature(thread_sanitizer)
 #define IWLOMAP_NO_CLONES 1

@@ -18,8 +18,8 @@
 // Ouster frame 44,701 against 53,283 (2.73 against 1.63 MiB); no 4-voxel shape does better on
 // either (the ground and most surfaces lie closer to horizontal than to vertical). The batch into
 // an empty map took 3.2 instead of 4.7 MiB with its headers and index, and 5-7% less time after
-// other work had evicted the caches (about the same with the caches warm). A block filled by free space still costs 8 bytes a voxel,
-// plus a 192-byte header (4.7% more).
+// other work had evicted the caches (about the same with the caches warm). A block filled by free
+// space still costs 8 bytes a voxel, plus a 192-byte header (4.7% more).
 //
 // A voxel costs 8 bytes: float log-odds, uint16 count and 2 spare bytes. Log-odds and count share
 // a cache line, so an update costs one cache miss, not two (measured: the separate arrays of a
