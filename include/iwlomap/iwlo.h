@@ -104,6 +104,10 @@ class Updater {
   double occupied_fast_from_;  // L at or above this: P >= P_th for certain, occupied scale is 1
   double free_fast_to_;        // L at or below this: P <= 1 - P_th for certain, free scale is 1
   std::array<double, 2> scale_at_zero_{};  // adaptive_scale(0.5, occupied) for occupied = false, true
+  // The stored log-odds (float, as voxels keep them) after an unknown voxel's first observation
+  // with weight 1: with the occupied flag and integer intensity I = 0..255, and without the flag.
+  std::array<float, 256> first_flagged_{};
+  float first_free_ = 0.0f;
 };
 
 /// Applies one observation to a stored voxel state in place: increments the count (saturating),
