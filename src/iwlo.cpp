@@ -122,7 +122,8 @@ Updater::Updater(const IwloParams& params) : p_(params) {
   for (std::size_t i = 0; i < integer_weight_.size(); ++i)
     integer_weight_[i] = intensity_weight(static_cast<double>(i), p_);
   for (std::size_t i = 0; i < first_flagged_.size(); ++i)
-    first_flagged_[i] = static_cast<float>(detail::UpdaterKernel::step(*this, 0.0, 1, static_cast<double>(i), true, 1.0));
+    first_flagged_[i] =
+        static_cast<float>(detail::UpdaterKernel::step(*this, 0.0, 1, static_cast<double>(i), true, 1.0));
   first_free_ = static_cast<float>(detail::UpdaterKernel::step(*this, 0.0, 1, 0.0, false, 1.0));
 }
 

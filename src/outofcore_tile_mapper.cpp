@@ -628,12 +628,10 @@ struct OutofcoreTileMapper::Impl {
         detail::VoxelBlock& b = accessor_of(j).block(detail::block_of(key));
         const int index = detail::index_in_block(key);
         const int cell = index >> detail::kCellShift;
-        const auto w = static_cast<std::size_t>(cell >> 6);
-        const std::uint64_t missing = (std::uint64_t{1} << (cell & 63)) & ~b.cell_mask.word[w];
-        if (missing != 0) {
+        if (!b.has_cell(cell)) {
           // Listed before the note is made: emplace_back may throw.
           if (!b.pending.any()) pending_blocks.emplace_back(&b, &tile_of(j).grid);
-          b.pending.word[w] |= missing;
+          b.note_pending(cell);
         }
         targets[j] = {&b, index};
       }

@@ -124,12 +124,10 @@ struct ProbabilityUpdater::Impl {
             detail::VoxelBlock& b = grid.get_or_create(keys.block(r), keys.slot(r));
             const int index = keys.index(r);
             const int cell = index >> detail::kCellShift;
-            const auto w = static_cast<std::size_t>(cell >> 6);
-            const std::uint64_t missing = (std::uint64_t{1} << (cell & 63)) & ~b.cell_mask.word[w];
             detail::Voxel* v = nullptr;
-            if (missing != 0) {
+            if (!b.has_cell(cell)) {
               const bool first = !b.pending.any();  // the block's first missing cell
-              b.pending.word[w] |= missing;
+              b.note_pending(cell);
               blocks[num_blocks] = &b;
               num_blocks += first ? 1 : 0;
             } else {

@@ -162,6 +162,10 @@ struct alignas(64) VoxelBlock {
 
   [[nodiscard]] int num_cells() const noexcept { return cell_mask.count(); }
   [[nodiscard]] bool has_cell(int cell) const noexcept { return cell_mask.has(cell); }
+  /// Notes \p cell in `pending`, for a batch that allocates its blocks' missing cells together.
+  void note_pending(int cell) noexcept {
+    pending.word[static_cast<std::size_t>(cell >> 6)] |= std::uint64_t{1} << (cell & 63);
+  }
   /// The voxel at \p index; its cell must be allocated.
   [[nodiscard]] Voxel& existing(int index) noexcept {
     return cells[position[static_cast<std::size_t>(index >> kCellShift)]]
