@@ -155,7 +155,7 @@ struct alignas(64) VoxelBlock {
   std::uint32_t known = 0;  // voxels with count > 0
   CellMask cell_mask;       // the allocated cells
   Cell* cells = nullptr;    // the allocated cells, cell_mask.count() of them
-  CellMask pending;         // cells a batch in progress needs (RAM backend); empty between calls
+  CellMask pending;         // cells a batch in progress needs (RAM, Disk); empty between calls
   // Position of cell c in `cells`, when allocated; left uninitialised otherwise (a new block
   // writes only its first cache line).
   std::array<std::uint8_t, kBlockCells> position;
