@@ -7,7 +7,7 @@
 #include "iwlomap/outofcore_tile_mapper.h"
 #include "iwlomap/probability_updater.h"
 
-#include "detail/block_grid.h"
+#include "storage/block_grid.h"
 
 #include <gtest/gtest.h>
 

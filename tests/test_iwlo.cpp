@@ -5,6 +5,9 @@
 
 #include "iwlomap/iwlo.h"
 
+#include "integrate/updater.h"
+#include "integrate/voxel_update.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -265,7 +268,7 @@ TEST(IwloProbability, LogOddsRoundTripWhenKnownValues) {
 // ---- the precomputed Updater -----------------------------------------------------------------
 
 TEST(IwloUpdater, MatchesHandValuesWhenDefaultParams) {
-  const iwlo::Updater u;
+  const detail::Updater u;
   // Same as the adaptive occupied case above: -1 + 0.28238849243849484 = -0.7176115075615052.
   EXPECT_NEAR(u.step(-1.0, 1, 145.0, true, 1.0), -0.7176115075615052, kTol);
   // First free observation from 0: -3; clamped at L_min from -9.
@@ -282,7 +285,7 @@ TEST(IwloUpdater, MatchesHandValuesWhenDefaultParams) {
 TEST(IwloUpdater, ThrowsWhenParamsInvalid) {
   IwloParams p;
   p.min_alpha = 0.0;
-  EXPECT_THROW(iwlo::Updater{p}, std::invalid_argument);
+  EXPECT_THROW(detail::Updater{p}, std::invalid_argument);
 }
 
 // The Updater promises bit-identical results to step(); sweep the inputs where its shortcuts
@@ -309,7 +312,7 @@ TEST(IwloUpdater, BitIdenticalToStepWhenSweepingInputs) {
   std::size_t compared = 0;
   std::size_t mismatches = 0;
   for (const IwloParams& p : param_sets) {
-    const iwlo::Updater u(p);
+    const detail::Updater u(p);
     std::vector<double> log_odds = {-10.0, -3.0, -1e-7, 0.0, 1e-7, 0.3, 2.0, 9.99};
     for (double th : {p.adaptive_threshold, 1.0 - p.adaptive_threshold}) {
       const double l = std::log(th / (1.0 - th));
@@ -338,13 +341,13 @@ TEST(IwloUpdater, BitIdenticalToStepWhenSweepingInputs) {
 
 TEST(IwloApplyObservation, SameStoredStateWhenUsingUpdater) {
   const IwloParams p;
-  const iwlo::Updater u(p);
+  const detail::Updater u(p);
   float La = 0.0f, Lb = 0.0f;
   std::uint16_t na = 0, nb = 0;
   const double seq[][3] = {{200, 1, 1}, {20, 1, 1}, {0, 0, 0.5}, {255, 1, 2}, {145.5, 1, 1}, {35, 1, 1}};
   for (const auto& o : seq) {
     iwlo::apply_observation(La, na, o[0], o[1] != 0.0, o[2], p);
-    iwlo::apply_observation(Lb, nb, o[0], o[1] != 0.0, o[2], u);
+    detail::update_voxel_state(Lb, nb, o[0], o[1] != 0.0, o[2], u);
     EXPECT_EQ(La, Lb);
     EXPECT_EQ(na, nb);
   }

@@ -6,7 +6,7 @@
 #include "iwlomap/ray_caster.h"
 #include "iwlomap/synthetic_scan.h"
 
-#include "detail/block_grid.h"
+#include "storage/block_grid.h"
 
 #include <gtest/gtest.h>
 

@@ -4,20 +4,15 @@
 /// \file
 /// IWLO (Intensity-Weighted Log-Odds): the parameters and the per-observation update math.
 ///
-/// Every backend applies exactly these functions, so that RAM, Disk and OctoMap maps built from
-/// the same input agree voxel by voxel. The math is done in double precision; backends store the
-/// resulting log-odds as float (see iwlo::apply_observation()).
+/// These functions are the reference of the update: every backend's result equals
+/// iwlo::apply_observation() bit for bit (the backends run a precomputed, inlined form of step()
+/// that is tested against it), so RAM, Disk and OctoMap maps built from the same input agree voxel
+/// by voxel. The math is done in double precision; voxels store the resulting log-odds as float.
 
-#include <array>
 #include <cstdint>
 #include <limits>
-#include <vector>
 
 namespace iwlomap {
-
-namespace detail {
-struct UpdaterKernel;
-}
 
 /// All parameters of the IWLO update, with the defaults of the reference API.
 /// Intensities are in the sensor's raw units (e.g. 0..255 echo amplitude); log-odds are natural
@@ -83,49 +78,14 @@ inline constexpr std::uint32_t kMaxCount = std::numeric_limits<std::uint16_t>::m
   return count >= kMaxCount ? kMaxCount : count + 1;
 }
 
-/// step() with the per-parameter constants precomputed, for the hot loops of the backends.
-/// It returns exactly what step() returns (bit for bit): learning rates and the weights of integer
-/// intensities 0..255 come from tables filled by learning_rate() and intensity_weight()
-/// themselves, and the voxel's probability is skipped only when the log-odds lie clearly on the
-/// side of an adaptive threshold where the scale is 1; everything else takes step()'s path.
-class Updater {
- public:
-  /// Validates \p params (throws std::invalid_argument).
-  explicit Updater(const IwloParams& params = {});
-  [[nodiscard]] const IwloParams& params() const noexcept { return p_; }
-  [[nodiscard]] double step(double log_odds, std::uint32_t count, double intensity, bool occupied_flag,
-                            double weight) const;
-
- private:
-  friend struct detail::UpdaterKernel;  // the backends' inlined copy of step()
-  IwloParams p_;
-  std::vector<double> alpha_;                  // alpha_[n - 1] for counts below the floor
-  std::array<double, 256> integer_weight_{};   // intensity_weight(I) for I = 0..255
-  double occupied_fast_from_;  // L at or above this: P >= P_th for certain, occupied scale is 1
-  double free_fast_to_;        // L at or below this: P <= 1 - P_th for certain, free scale is 1
-  std::array<double, 2> scale_at_zero_{};  // adaptive_scale(0.5, occupied) for occupied = false, true
-  // The stored log-odds (float, as voxels keep them) after an unknown voxel's first observation
-  // with weight 1: with the occupied flag and integer intensity I = 0..255, and without the flag.
-  std::array<float, 256> first_flagged_{};
-  float first_free_ = 0.0f;
-};
-
 /// Applies one observation to a stored voxel state in place: increments the count (saturating),
-/// runs step() in double precision and stores the result as float. This is the single place where
-/// the stored state changes, shared by every backend.
+/// runs step() in double precision and stores the result as float: the stored state a voxel gets
+/// from one observation in every backend.
 inline void apply_observation(float& log_odds_value, std::uint16_t& count, double intensity,
                               bool occupied_flag, double weight, const IwloParams& p) {
   const std::uint32_t n = increment_count(count);
   log_odds_value =
       static_cast<float>(step(static_cast<double>(log_odds_value), n, intensity, occupied_flag, weight, p));
-  count = static_cast<std::uint16_t>(n);
-}
-
-/// The same with a precomputed Updater (identical results, faster).
-inline void apply_observation(float& log_odds_value, std::uint16_t& count, double intensity,
-                              bool occupied_flag, double weight, const Updater& u) {
-  const std::uint32_t n = increment_count(count);
-  log_odds_value = static_cast<float>(u.step(static_cast<double>(log_odds_value), n, intensity, occupied_flag, weight));
   count = static_cast<std::uint16_t>(n);
 }
 

@@ -194,6 +194,26 @@ inline Eigen::MatrixXd IMapperBackend::get_occupied_mean_positions(double min_pr
                          " backend does not implement get_occupied_mean_positions()");
 }
 
+/// The common base of the library's backends (RAM, Disk, OctoMap): the reference API's grouped
+/// parameter setters implemented once, each as set_params() of a validated copy of get_params()
+/// with the named fields changed, so a rejected value changes nothing. A backend of your own may
+/// derive from it to get them, or implement IMapperBackend directly.
+class BackendBase : public IMapperBackend {
+ public:
+  void set_iwlo_params(double sharpness, double decay_rate, double min_alpha, double L_min, double L_max) final;
+  void set_log_odds_params(double log_odds_occupied, double log_odds_free) final;
+  void set_intensity_params(double intensity_threshold, double intensity_max) final;
+  void set_adaptive_params(bool enabled, double threshold, double max_ratio) final;
+  void set_occupied_threshold(double threshold) final;
+
+ protected:
+  /// Sets the parameters to \p change applied to a copy of get_params(), once the copy is
+  /// validated (std::invalid_argument otherwise, nothing changed). The default reads with
+  /// get_params() and writes with set_params(); a backend whose calls may run concurrently
+  /// overrides it to do both under one lock.
+  virtual void modify_params(const std::function<void(IwloParams&)>& change);
+};
+
 /// Options of make_backend() that only some backends use.
 struct BackendOptions {
   std::string directory;      ///< Disk: map directory

@@ -92,7 +92,7 @@ struct DiskMapInfo {
   unsigned format_version = 0;
 };
 
-class OutofcoreTileMapper final : public IMapperBackend {
+class OutofcoreTileMapper final : public BackendBase {
  public:
   /// Reads the metadata of the map in \p directory without opening the map (no lock, no tiles),
   /// so that a tool can open a map it did not create with the stored resolution and tile size.
@@ -126,11 +126,6 @@ class OutofcoreTileMapper final : public IMapperBackend {
   void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                    const Eigen::VectorXd& intensities, double max_range = -1.0) override;
 
-  void set_iwlo_params(double sharpness, double decay_rate, double min_alpha, double L_min, double L_max) override;
-  void set_log_odds_params(double log_odds_occupied, double log_odds_free) override;
-  void set_intensity_params(double intensity_threshold, double intensity_max) override;
-  void set_adaptive_params(bool enabled, double threshold, double max_ratio) override;
-  void set_occupied_threshold(double threshold) override;
   void set_params(const IwloParams& params) override;
   [[nodiscard]] IwloParams get_params() const override;
   void set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) override;
@@ -186,6 +181,10 @@ class OutofcoreTileMapper final : public IMapperBackend {
   [[nodiscard]] size_t get_num_tiles() const;
   /// Largest number of tiles resident at once since construction (or the last clear()).
   [[nodiscard]] size_t get_peak_resident_tiles() const;
+
+ protected:
+  /// The read and the write of the parameters under the mapper's lock.
+  void modify_params(const std::function<void(IwloParams&)>& change) override;
 
  private:
   struct Impl;

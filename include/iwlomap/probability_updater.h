@@ -22,7 +22,7 @@ namespace iwlomap {
 /// concurrently with each other. Non-copyable, movable; a moved-from object throws
 /// std::logic_error from every method that reads or changes the map (get_backend_type(), the
 /// thread count and the optional defaults of IMapperBackend still answer).
-class ProbabilityUpdater final : public IMapperBackend {
+class ProbabilityUpdater final : public BackendBase {
  public:
   /// \param resolution voxel edge in metres (> 0, finite); throws std::invalid_argument otherwise.
   explicit ProbabilityUpdater(double resolution = 0.05);
@@ -39,11 +39,6 @@ class ProbabilityUpdater final : public IMapperBackend {
   void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                    const Eigen::VectorXd& intensities, double max_range = -1.0) override;
 
-  void set_iwlo_params(double sharpness, double decay_rate, double min_alpha, double L_min, double L_max) override;
-  void set_log_odds_params(double log_odds_occupied, double log_odds_free) override;
-  void set_intensity_params(double intensity_threshold, double intensity_max) override;
-  void set_adaptive_params(bool enabled, double threshold, double max_ratio) override;
-  void set_occupied_threshold(double threshold) override;
   void set_params(const IwloParams& params) override;
   [[nodiscard]] IwloParams get_params() const override;
   void set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) override;

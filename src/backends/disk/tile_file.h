@@ -1,0 +1,227 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+// The on-disk format of the Disk backend's tiles and the durable file operations behind it.
+//
+// A tile file is a fixed 80-byte header followed by a payload of block records; every integer is
+// little-endian whatever the host, so a map directory can move between machines.
+//
+//   header  offset  field
+//           0       magic "IWLOTILE" (8 bytes)
+//           8       u32 format version (kTileFormatVersion)
+//           12      u32 byte-order mark 0x01020304 (bytes 04 03 02 01 on disk)
+//           16      u32 header size (80)
+//           20      u32 tile edge in voxels
+//           24      f64 resolution (IEEE-754 bits as u64)
+//           32      i32 x, y, z tile coordinate
+//           44      u32 record count (blocks)
+//           48      u64 known voxels
+//           56      u64 payload bytes
+//           64      u32 CRC-32 of the payload
+//           68      u32 x 2 reserved (0)
+//           76      u32 CRC-32 of header bytes 0..75
+//   record  i32 x, y, z block coordinate (absolute, voxel key >> 3), u32 known voxels n (1..512),
+//           8 x u64 mask of the known voxels (bit i = the voxel at x + 8 y + 64 z inside the
+//           block, whatever the in-memory layout), then n x (f32 log-odds bits as u32, u16 count)
+//           in that order. Records are sorted by block coordinate, which
+//           makes a file a canonical image of its tile and lets the reader detect duplicates.
+//
+// The header has its own checksum so that a map can be opened by reading headers only; the
+// version is checked before that checksum, so a newer file is reported as newer, not as corrupt.
+
+#include "storage/block_grid.h"
+#include "iwlomap/outofcore_tile_mapper.h"
+#include "iwlomap/voxel_key.h"
+
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <cstring>
+#include <string>
+#include <vector>
+
+namespace iwlomap::detail {
+
+inline constexpr std::uint32_t kTileFormatVersion = 1;
+inline constexpr std::size_t kTileHeaderBytes = 80;
+inline constexpr std::size_t kRecordFixedBytes = 12 + 4 + 64;  // key, count, mask
+inline constexpr std::size_t kVoxelBytes = 6;                  // f32 log-odds, u16 count
+
+/// index_in_block() of the voxel at file position \p f = x + 8 y + 64 z of a block record.
+[[nodiscard]] inline std::size_t file_to_block_index(int f) noexcept {
+  return static_cast<std::size_t>(index_in_block(VoxelKey{f & 7, (f >> 3) & 7, f >> 6}));
+}
+
+/// CRC-32 (IEEE 802.3 polynomial, reflected, as zlib's crc32()): \p crc is the value of the data
+/// before (0 to start).
+[[nodiscard]] std::uint32_t crc32(const std::uint8_t* data, std::size_t size, std::uint32_t crc = 0) noexcept;
+
+struct TileHeader {
+  std::uint32_t version = kTileFormatVersion;
+  std::uint32_t tile_voxels = 0;
+  double resolution = 0.0;
+  VoxelKey tile{};
+  std::uint32_t record_count = 0;
+  std::uint64_t known_voxels = 0;
+  std::uint64_t payload_bytes = 0;
+  std::uint32_t payload_crc = 0;
+};
+
+/// Serialises the known voxels of \p grid, the blocks of tile \p tile, into \p out (replaced).
+/// Returns the number of known voxels written.
+std::uint64_t encode_tile(const BlockGrid& grid, double resolution, std::uint32_t tile_voxels, const VoxelKey& tile,
+                          std::vector<std::uint8_t>& out);
+
+/// Parses and checks the header in \p data (the first \p available bytes of a file of
+/// \p file_size bytes): magic, version, byte order, header checksum, the expected resolution,
+/// tile edge and tile coordinate, and a file size that matches the payload size. Throws
+/// StorageError naming \p path.
+[[nodiscard]] TileHeader parse_tile_header(const std::uint8_t* data, std::size_t available, std::uint64_t file_size,
+                                           double resolution, std::uint32_t tile_voxels, const VoxelKey& tile,
+                                           const std::string& path);
+
+/// Checks the payload checksum of a whole tile file \p bytes (whose header \p h was parsed) and
+/// calls fn(const DenseBlock&) once per record, in file order. \p scratch is reused for every
+/// record: its voxels hold the record's known voxels and zeros elsewhere, its known field the
+/// record's count. Throws StorageError (kCorrupt) naming \p path for any inconsistency.
+template <class Fn>
+void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, std::uint32_t tile_voxels,
+                 const std::string& path, DenseBlock& scratch, Fn&& fn);
+
+// ---- durable file operations (POSIX); each throws StorageError (kIo) naming the path ----
+
+/// The whole file.
+[[nodiscard]] std::vector<std::uint8_t> read_file(const std::string& path);
+/// Up to \p max_bytes from the start of the file, and the file's size.
+[[nodiscard]] std::vector<std::uint8_t> read_file_prefix(const std::string& path, std::size_t max_bytes,
+                                                         std::uint64_t& file_size);
+/// Writes \p data to \p temp_path (replacing it), fsync'ed when \p sync; the file that will take
+/// its place, \p final_path, is untouched and is the path errors name. On failure the temporary
+/// file is removed.
+void write_temp_file(const std::string& temp_path, const std::string& final_path, const std::vector<std::uint8_t>& data,
+                     bool sync);
+/// Makes a complete temporary file the real one: fsync (unless \p already_synced), then rename
+/// over \p final_path. On failure both files are left as they are. The caller fsyncs the directory.
+void commit_temp_file(const std::string& temp_path, const std::string& final_path, bool already_synced);
+/// write_temp_file() with fsync, then commit_temp_file().
+void write_file_durably(const std::string& temp_path, const std::string& final_path,
+                        const std::vector<std::uint8_t>& data);
+/// Opens (creating and emptying) a scratch file for reading and writing; returns the descriptor.
+[[nodiscard]] int create_scratch_file(const std::string& path);
+/// Writes all of \p data at \p offset of \p fd (\p path names the file in errors).
+void write_at(int fd, const std::vector<std::uint8_t>& data, std::uint64_t offset, const std::string& path);
+/// Reads exactly \p size bytes at \p offset of \p fd into \p out (replaced).
+void read_at(int fd, std::uint64_t offset, std::size_t size, const std::string& path, std::vector<std::uint8_t>& out);
+/// fsync of a directory, so that renames and unlinks in it are durable.
+void sync_directory(const std::string& directory);
+/// Removes a file; a missing file is not an error.
+void remove_file(const std::string& path);
+
+/// "0x1234abcd", for messages.
+[[nodiscard]] std::string hex32(std::uint32_t v);
+
+/// Throws StorageError (kCorrupt) "tile file <path> is corrupt: <what>".
+[[noreturn]] void throw_corrupt(const std::string& path, const std::string& what);
+
+// ---- little-endian access ----
+
+inline std::uint32_t load_u32(const std::uint8_t* p) noexcept {
+  return static_cast<std::uint32_t>(p[0]) | (static_cast<std::uint32_t>(p[1]) << 8) |
+         (static_cast<std::uint32_t>(p[2]) << 16) | (static_cast<std::uint32_t>(p[3]) << 24);
+}
+inline std::uint64_t load_u64(const std::uint8_t* p) noexcept {
+  return static_cast<std::uint64_t>(load_u32(p)) | (static_cast<std::uint64_t>(load_u32(p + 4)) << 32);
+}
+inline std::uint16_t load_u16(const std::uint8_t* p) noexcept {
+  return static_cast<std::uint16_t>(p[0] | (p[1] << 8));
+}
+inline void store_u16(std::uint8_t* p, std::uint16_t v) noexcept {
+  p[0] = static_cast<std::uint8_t>(v);
+  p[1] = static_cast<std::uint8_t>(v >> 8);
+}
+inline void store_u32(std::uint8_t* p, std::uint32_t v) noexcept {
+  p[0] = static_cast<std::uint8_t>(v);
+  p[1] = static_cast<std::uint8_t>(v >> 8);
+  p[2] = static_cast<std::uint8_t>(v >> 16);
+  p[3] = static_cast<std::uint8_t>(v >> 24);
+}
+inline void store_u64(std::uint8_t* p, std::uint64_t v) noexcept {
+  store_u32(p, static_cast<std::uint32_t>(v));
+  store_u32(p + 4, static_cast<std::uint32_t>(v >> 32));
+}
+
+/// Floor division of a key by a positive divisor (tile coordinate of a voxel or block key).
+[[nodiscard]] inline std::int32_t floor_div(std::int32_t a, std::int32_t b) noexcept {
+  const std::int32_t q = a / b;
+  return (a % b != 0 && a < 0) ? q - 1 : q;
+}
+
+// ---- template body ----
+
+template <class Fn>
+void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, std::uint32_t tile_voxels,
+                 const std::string& path, DenseBlock& scratch, Fn&& fn) {
+  if (bytes.size() != kTileHeaderBytes + h.payload_bytes)
+    throw_corrupt(path, "the file has " + std::to_string(bytes.size()) + " bytes, its header announces " +
+                            std::to_string(kTileHeaderBytes + h.payload_bytes) + " (changed while read?)");
+  const std::uint8_t* p = bytes.data() + kTileHeaderBytes;
+  const std::uint8_t* const end = p + h.payload_bytes;
+  const std::uint32_t crc = crc32(p, static_cast<std::size_t>(h.payload_bytes));
+  if (crc != h.payload_crc)
+    throw_corrupt(path, "payload checksum mismatch (stored CRC-32 " + hex32(h.payload_crc) + ", computed " +
+                            hex32(crc) + ")");
+  const auto edge = static_cast<std::int32_t>(tile_voxels / kBlockEdge);
+  const VoxelKey lo{h.tile.x * edge, h.tile.y * edge, h.tile.z * edge};
+  std::uint64_t known_total = 0;
+  VoxelKey previous{};
+  for (std::uint32_t r = 0; r < h.record_count; ++r) {
+    const std::string where = "record " + std::to_string(r);
+    if (static_cast<std::size_t>(end - p) < kRecordFixedBytes) throw_corrupt(path, where + " is cut short");
+    const VoxelKey key{static_cast<std::int32_t>(load_u32(p)), static_cast<std::int32_t>(load_u32(p + 4)),
+                       static_cast<std::int32_t>(load_u32(p + 8))};
+    const std::uint32_t n = load_u32(p + 12);
+    if (key.x < lo.x || key.x >= lo.x + edge || key.y < lo.y || key.y >= lo.y + edge || key.z < lo.z ||
+        key.z >= lo.z + edge)
+      throw_corrupt(path, where + " holds block (" + std::to_string(key.x) + ", " + std::to_string(key.y) + ", " +
+                              std::to_string(key.z) + ") outside the tile");
+    if (r > 0 && !(previous < key)) throw_corrupt(path, where + " is out of order or repeated");
+    previous = key;
+    std::uint64_t mask[kBlockVoxels / 64];
+    std::uint32_t bits = 0;
+    for (int w = 0; w < kBlockVoxels / 64; ++w) {
+      mask[w] = load_u64(p + 16 + 8 * w);
+      bits += static_cast<std::uint32_t>(__builtin_popcountll(mask[w]));
+    }
+    if (n == 0 || n != bits)
+      throw_corrupt(path, where + " announces " + std::to_string(n) + " voxels, its mask holds " + std::to_string(bits));
+    p += kRecordFixedBytes;
+    if (static_cast<std::size_t>(end - p) < static_cast<std::size_t>(n) * kVoxelBytes)
+      throw_corrupt(path, where + " is cut short");
+    scratch.key = key;
+    scratch.known = n;
+    scratch.voxels.fill(Voxel{});
+    for (int w = 0; w < kBlockVoxels / 64; ++w) {
+      std::uint64_t m = mask[w];
+      while (m != 0) {
+        const int i = w * 64 + __builtin_ctzll(m);
+        m &= m - 1;
+        Voxel& v = scratch.voxels[file_to_block_index(i)];
+        const std::uint32_t raw = load_u32(p);
+        static_assert(sizeof(float) == sizeof(std::uint32_t), "IEEE-754 binary32 floats expected");
+        std::memcpy(&v.log_odds, &raw, sizeof raw);
+        v.count = load_u16(p + 4);
+        if (v.count == 0 || !std::isfinite(v.log_odds))
+          throw_corrupt(path, where + " holds voxel " + std::to_string(i) + " with count 0 or a non-finite log-odds");
+        p += kVoxelBytes;
+      }
+    }
+    known_total += n;
+    fn(static_cast<const DenseBlock&>(scratch));
+  }
+  if (p != end) throw_corrupt(path, "the payload has bytes after its last record");
+  if (known_total != h.known_voxels)
+    throw_corrupt(path, "the records hold " + std::to_string(known_total) + " voxels, the header announces " +
+                            std::to_string(h.known_voxels));
+}
+
+}  // namespace iwlomap::detail

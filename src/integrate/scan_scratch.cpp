@@ -1,0 +1,148 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#include "integrate/scan_scratch.h"
+
+#include "integrate/batch_input.h"
+#include "storage/free_memory.h"
+#include "iwlomap/ray_caster.h"
+
+#include <algorithm>
+#include <cmath>
+#include <atomic>
+#include <exception>
+#include <thread>
+
+namespace iwlomap::detail {
+
+std::size_t ScanScratch::chunk(const VoxelKey& chunk_key) {
+  const auto next = static_cast<std::uint32_t>(chunks_.size());
+  const std::uint32_t i = chunk_index_.insert(chunk_key, next);
+  if (i == next) {
+    chunks_.emplace_back();
+    chunks_.back().key = chunk_key;
+  }
+  return i;
+}
+
+void ScanScratch::add_hit(const VoxelKey& k, double intensity) {
+  const auto next = static_cast<std::uint32_t>(hits_.size());
+  const std::uint32_t i = hit_index_.insert(k, next);
+  if (i == next) {
+    hits_.push_back({k, intensity});
+    const std::size_t c = chunk({k.x >> kChunkShift, k.y >> kChunkShift, k.z >> kChunkShift});
+    const std::size_t bit = bit_in_chunk(k);
+    chunks_[c].hit[bit >> 6] |= std::uint64_t{1} << (bit & 63);
+  } else if (intensity > hits_[i].intensity) {
+    hits_[i].intensity = intensity;
+  }
+}
+
+void ScanScratch::clear() {
+  chunks_.clear();
+  chunk_index_.clear_keep_capacity();
+  hits_.clear();
+  hit_index_.clear_keep_capacity();
+  last_ = -1;
+}
+
+std::size_t ScanScratch::collect_range(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                                       const Eigen::VectorXd& intensities, double max_range, double resolution,
+                                       Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad) {
+  const bool clip = max_range > 0.0;
+  std::size_t skipped = 0;
+  const auto mark = [this](const VoxelKey& k) { mark_free(k); };
+  for (Eigen::Index i = begin; i < end; ++i) {
+    const Eigen::Vector3d p = points.row(i).transpose();
+    const double intensity = intensities[i];
+    if (!p.allFinite() || !std::isfinite(intensity)) {
+      ++skipped;
+      continue;
+    }
+    const Eigen::Vector3d d = p - origin;
+    const double range = d.norm();
+    const bool beyond = clip && range > max_range;
+    const Eigen::Vector3d end_point = beyond ? Eigen::Vector3d(origin + d * (max_range / range)) : p;
+    if (!is_representable(end_point, resolution)) {
+      if (first_bad == nullptr) throw_out_of_range(i, p, resolution);
+      *first_bad = std::min(*first_bad, i);
+      continue;
+    }
+    cast_ray(origin, end_point, resolution, mark);
+    if (!beyond) add_hit(world_to_key(p, resolution), intensity);
+  }
+  return skipped;
+}
+
+void ScanScratch::merge(const ScanScratch& other) {
+  for (const Chunk& c : other.chunks_) {
+    Chunk& mine = chunks_[chunk(c.key)];
+    for (std::size_t w = 0; w < c.free.size(); ++w) {
+      mine.free[w] |= c.free[w];
+      mine.hit[w] |= c.hit[w];
+    }
+  }
+  for (const Hit& h : other.hits_) add_hit(h.key, h.intensity);
+}
+
+std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                                 const Eigen::VectorXd& intensities, double max_range, double resolution,
+                                 int threads) {
+  clear();
+  const Eigen::Index n = points.rows();
+  // Below a few thousand rays a thread costs more than it saves.
+  const Eigen::Index useful = std::max<Eigen::Index>(1, n / 2048);
+  const int t = static_cast<int>(std::min<Eigen::Index>(std::max(threads, 1), useful));
+  if (t == 1) return collect_range(origin, points, intensities, max_range, resolution, 0, n, nullptr);
+
+  // Rays differ in length by an order of magnitude (a scan's lower rings hit the ground near the
+  // sensor), so threads take blocks of rays from a shared counter rather than fixed ranges. Which
+  // thread casts which ray does not matter: OR and max do not depend on the order. An
+  // out-of-range point is recorded, not thrown, so the error reported is always the one of the
+  // lowest index, as with one thread.
+  constexpr Eigen::Index kGrain = 1024;
+  std::atomic<Eigen::Index> next{0};
+  helpers_.resize(static_cast<std::size_t>(t - 1));
+  std::vector<std::size_t> skipped(static_cast<std::size_t>(t), 0);
+  std::vector<Eigen::Index> first_bad(static_cast<std::size_t>(t), n);
+  const auto work = [&](ScanScratch& into, std::size_t k) {
+    for (Eigen::Index b = next.fetch_add(kGrain); b < n; b = next.fetch_add(kGrain))
+      skipped[k] += into.collect_range(origin, points, intensities, max_range, resolution, b, std::min(b + kGrain, n),
+                                       &first_bad[k]);
+  };
+  std::vector<std::thread> workers;
+  workers.reserve(static_cast<std::size_t>(t - 1));
+  for (int k = 1; k < t; ++k) {
+    const auto idx = static_cast<std::size_t>(k);
+    workers.emplace_back([&, idx] {
+      helpers_[idx - 1].clear();
+      work(helpers_[idx - 1], idx);
+    });
+  }
+  work(*this, 0);  // the calling thread casts into this scratch directly
+  for (auto& w : workers) w.join();
+  const Eigen::Index bad = *std::min_element(first_bad.begin(), first_bad.end());
+  if (bad < n) throw_out_of_range(bad, points.row(bad).transpose(), resolution);
+  std::size_t total = skipped[0];
+  for (int k = 1; k < t; ++k) {
+    merge(helpers_[static_cast<std::size_t>(k - 1)]);
+    total += skipped[static_cast<std::size_t>(k)];
+  }
+  return total;
+}
+
+std::size_t ScanScratch::bytes() const noexcept {
+  std::size_t b = chunks_.capacity() * sizeof(Chunk) + hits_.capacity() * sizeof(Hit) + chunk_index_.bytes() +
+                  hit_index_.bytes() + helpers_.capacity() * sizeof(ScanScratch);
+  for (const ScanScratch& h : helpers_) b += h.bytes();
+  return b;
+}
+
+void ScanScratch::release() {
+  free_memory(chunks_);
+  free_memory(hits_);
+  chunk_index_.reset();
+  hit_index_.reset();
+  last_ = -1;
+  free_memory(helpers_);
+}
+
+}  // namespace iwlomap::detail

@@ -1,0 +1,161 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+// Per-scan scratch for insert_scan(): it turns the rays of one scan into at most one observation
+// per voxel before any backend storage is touched. Free voxels are bits in the masks of 32^3-voxel
+// chunks (a ray step costs a bit-set, and a hash look-up only when the ray enters another chunk,
+// about every 40 steps); hits keep the largest intensity per voxel. Inside a chunk the bits are
+// laid out block by block (64 blocks of 8^3 voxels, 512 bits each), so that applying the scratch
+// visits each grid block once. Occupied wins over free. Because OR and max commute, the result
+// does not depend on the order of the rays, which is what lets rays be cast in any order or on
+// several threads and still give bit-identical maps.
+
+#include "storage/block_grid.h"
+#include "storage/flat_key_map.h"
+#include "iwlomap/voxel_key.h"
+
+#include <Eigen/Core>
+
+#include <algorithm>
+#include <array>
+#include <tuple>
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace iwlomap::detail {
+
+class ScanScratch {
+ public:
+  static constexpr int kChunkShift = 5;                                  // 32 voxels
+  static constexpr int kBlocksPerChunkEdge = 1 << (kChunkShift - kBlockShift);  // 4
+  static constexpr int kBlocksPerChunk = kBlocksPerChunkEdge * kBlocksPerChunkEdge * kBlocksPerChunkEdge;
+  static constexpr int kWordsPerBlock = kBlockVoxels / 64;  // 8
+  struct Chunk {
+    VoxelKey key;  // chunk coordinate (voxel key >> 5)
+    std::array<std::uint64_t, kBlocksPerChunk * kWordsPerBlock> free{};  // voxels crossed by a ray
+    std::array<std::uint64_t, kBlocksPerChunk * kWordsPerBlock> hit{};   // voxels holding an endpoint
+  };
+  struct Hit {
+    VoxelKey key;
+    double intensity;
+  };
+
+  /// Casts every ray of one scan into the scratch (cleared first). Inputs must have passed
+  /// check_scan_input(). Throws std::out_of_range for an endpoint whose key does not fit in int32
+  /// (the map is untouched, since nothing is applied yet). Returns the number of skipped points.
+  /// With \p threads > 1 the threads take blocks of rays from a shared counter, each casting into a
+  /// scratch of its own, and the scratches are merged (OR of the free bits, max of the hit
+  /// intensities): the observations are bit-identical to threads = 1. An out-of-range point
+  /// throws the error of the lowest such index, as in one thread.
+  std::size_t collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                      const Eigen::VectorXd& intensities, double max_range, double resolution, int threads = 1);
+
+  /// Calls fn(block_key, cells) for every grid block (8^3) that holds an observation, free or
+  /// hit, with \p cells (a CellMask) holding each cell of the block (see index_in_block()) that
+  /// holds one, in (z, y, x) order of chunk keys: an order that depends on the scan only, never on
+  /// which thread cast which ray, so backends that allocate blocks and cells in this order stay
+  /// identical for any thread count.
+  template <class Fn>
+  void for_each_block(Fn&& fn) const {
+    std::vector<std::size_t> order(chunks_.size());
+    for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+    std::sort(order.begin(), order.end(), [this](std::size_t a, std::size_t b) {
+      const VoxelKey& ka = chunks_[a].key;
+      const VoxelKey& kb = chunks_[b].key;
+      return std::tie(ka.z, ka.y, ka.x) < std::tie(kb.z, kb.y, kb.x);
+    });
+    for (const std::size_t ci : order) {
+      const Chunk& c = chunks_[ci];
+      for (int b = 0; b < kBlocksPerChunk; ++b) {
+        CellMask cells;
+        for (int w = 0; w < kWordsPerBlock; ++w) {
+          const std::size_t word = static_cast<std::size_t>(b * kWordsPerBlock + w);
+          cells |= cells_of_mask_word(c.free[word] | c.hit[word], w);
+        }
+        if (cells.any()) fn(block_key_of(c, b), cells);
+      }
+    }
+  }
+
+  /// The free-voxel part of for_each_observation() restricted to chunks [begin, end), for
+  /// backends that apply disjoint chunk ranges on several threads.
+  template <class FreeFn>
+  void for_each_free(std::size_t begin, std::size_t end, FreeFn&& free_fn) const {
+    for (std::size_t ci = begin; ci < end; ++ci) {
+      const Chunk& c = chunks_[ci];
+      for (int b = 0; b < kBlocksPerChunk; ++b) {
+        const VoxelKey block_key = block_key_of(c, b);
+        for (int w = 0; w < kWordsPerBlock; ++w) {
+          const std::size_t word = static_cast<std::size_t>(b * kWordsPerBlock + w);
+          std::uint64_t bits = c.free[word] & ~c.hit[word];
+          while (bits != 0) {
+            const int bit = __builtin_ctzll(bits);
+            bits &= bits - 1;
+            free_fn(block_key, w * 64 + bit);
+          }
+        }
+      }
+    }
+  }
+
+  [[nodiscard]] std::size_t num_chunks() const noexcept { return chunks_.size(); }
+  [[nodiscard]] const std::vector<Hit>& hits() const noexcept { return hits_; }
+
+  /// Calls free_fn(block_key, index_in_block) once per free voxel that holds no hit, grouped by
+  /// grid block (8^3) so consecutive calls share a block, then hit_fn(key, intensity) once per
+  /// hit voxel with its largest intensity.
+  template <class FreeFn, class HitFn>
+  void for_each_observation(FreeFn&& free_fn, HitFn&& hit_fn) const {
+    for_each_free(0, chunks_.size(), free_fn);
+    for_each_hit(hit_fn);
+  }
+
+  /// The hit part of for_each_observation().
+  template <class HitFn>
+  void for_each_hit(HitFn&& hit_fn) const {
+    for (const Hit& h : hits_) hit_fn(h.key, h.intensity);
+  }
+
+  /// Bytes held by the scratch buffers (kept between scans to avoid reallocation).
+  [[nodiscard]] std::size_t bytes() const noexcept;
+  /// Releases the buffers.
+  void release();
+
+ private:
+  [[nodiscard]] static VoxelKey block_key_of(const Chunk& c, int b) noexcept {
+    return {c.key.x * kBlocksPerChunkEdge + (b & 3), c.key.y * kBlocksPerChunkEdge + ((b >> 2) & 3),
+            c.key.z * kBlocksPerChunkEdge + (b >> 4)};
+  }
+  void clear();
+  // Casts rays [begin, end). An out-of-range point throws, or with \p first_bad is recorded there
+  // (the lowest index) and skipped.
+  std::size_t collect_range(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                            const Eigen::VectorXd& intensities, double max_range, double resolution,
+                            Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad);
+  void merge(const ScanScratch& other);
+
+  // Bit of voxel k inside its chunk: block-major, then index_in_block().
+  [[nodiscard]] static std::size_t bit_in_chunk(const VoxelKey& k) noexcept {
+    constexpr int m = kBlocksPerChunkEdge - 1;
+    const int b = ((k.x >> kBlockShift) & m) | (((k.y >> kBlockShift) & m) << 2) | (((k.z >> kBlockShift) & m) << 4);
+    return static_cast<std::size_t>(b * kBlockVoxels + index_in_block(k));
+  }
+  std::size_t chunk(const VoxelKey& chunk_key);
+  void mark_free(const VoxelKey& k) {
+    const VoxelKey ck{k.x >> kChunkShift, k.y >> kChunkShift, k.z >> kChunkShift};
+    if (last_ < 0 || chunks_[static_cast<std::size_t>(last_)].key != ck) last_ = static_cast<std::int64_t>(chunk(ck));
+    const std::size_t bit = bit_in_chunk(k);
+    chunks_[static_cast<std::size_t>(last_)].free[bit >> 6] |= std::uint64_t{1} << (bit & 63);
+  }
+  void add_hit(const VoxelKey& k, double intensity);
+
+  std::vector<Chunk> chunks_;
+  FlatKeyMap chunk_index_;
+  std::vector<Hit> hits_;
+  FlatKeyMap hit_index_;
+  std::int64_t last_ = -1;
+  std::vector<ScanScratch> helpers_;  // per-thread scratches, kept between scans
+};
+
+}  // namespace iwlomap::detail

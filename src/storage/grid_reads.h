@@ -1,0 +1,64 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+// Reading a BlockGrid as the backend interface reports it, shared by the backends that keep their
+// exact IWLO state in one (RAM, OctoMap), so that their answers cannot drift apart.
+
+#include "storage/block_grid.h"
+#include "iwlomap/iwlo.h"
+#include "iwlomap/mapper_backend.h"
+
+#include <Eigen/Core>
+
+#include <optional>
+#include <vector>
+
+namespace iwlomap::detail {
+
+/// The reported state of a stored voxel.
+[[nodiscard]] inline VoxelState state_of(const Voxel& v) {
+  return VoxelState{v.log_odds, iwlo::probability(v.log_odds), v.count};
+}
+
+/// Calls fn(key, voxel) for every known voxel, block by block in grid order.
+template <class Fn>
+void for_each_known(const BlockGrid& grid, Fn&& fn) {
+  for (const VoxelBlock* b : grid.blocks()) {
+    if (b->known == 0) continue;
+    b->for_each_slot([&](int i, const Voxel& v) {
+      if (v.count != 0) fn(voxel_of(b->key, i), v);
+    });
+  }
+}
+
+/// The known voxels with probability > \p threshold as N x 4 rows (centre x, y, z in metres, p).
+[[nodiscard]] inline std::vector<double> occupied_rows(const BlockGrid& grid, double resolution, double threshold) {
+  std::vector<double> rows;
+  for_each_known(grid, [&](const VoxelKey& key, const Voxel& v) {
+    const double p = iwlo::probability(v.log_odds);
+    if (!(p > threshold)) return;
+    const Eigen::Vector3d c = key_to_center(key, resolution);
+    rows.insert(rows.end(), {c.x(), c.y(), c.z(), p});
+  });
+  return rows;
+}
+
+/// Builds the N x 4 (x, y, z, p) matrix of occupied voxels from \p rows (flattened quadruples).
+[[nodiscard]] inline Eigen::MatrixXd rows_to_matrix(const std::vector<double>& rows) {
+  const auto n = static_cast<Eigen::Index>(rows.size() / 4);
+  Eigen::MatrixXd m(n, 4);
+  for (Eigen::Index i = 0; i < n; ++i)
+    for (Eigen::Index c = 0; c < 4; ++c) m(i, c) = rows[static_cast<std::size_t>(i * 4 + c)];
+  return m;
+}
+
+/// The state of voxel \p key, or nullopt when it is unknown.
+[[nodiscard]] inline std::optional<VoxelState> query_voxel(const BlockGrid& grid, const VoxelKey& key) {
+  const VoxelBlock* b = grid.find(block_of(key));
+  if (b == nullptr) return std::nullopt;
+  const Voxel* v = b->find(index_in_block(key));
+  if (v == nullptr || v->count == 0) return std::nullopt;
+  return state_of(*v);
+}
+
+}  // namespace iwlomap::detail
