@@ -1,8 +1,6 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "integrate/batch_input.h"
 
-#include "storage/block_grid.h"
-
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -68,40 +66,6 @@ void ChunkKeys::compute(const Eigen::MatrixXd& points, Eigen::Index begin, std::
                         const FloorDivider& divide) noexcept {
   for (std::size_t c = 0; c < 3; ++c)
     divide.floor_many(points.col(static_cast<Eigen::Index>(c)).data() + begin, rows, axis_[c].data(), flags_.data());
-}
-
-IWLOMAP_CPU_CLONES
-void ChunkKeys::compute_blocks(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows,
-                               const FloorDivider& divide) noexcept {
-  const auto derive = [this](std::size_t r, const VoxelKey& k) {
-    const VoxelKey b = block_of(k);
-    block_[0][r] = b.x;
-    block_[1][r] = b.y;
-    block_[2][r] = b.z;
-    index_[r] = index_in_block(k);
-    slot_[r] = static_cast<std::uint32_t>(BlockGrid::recent_slot(b));
-  };
-  // One pass from the coordinates to blocks and indices (keys are not kept); a chunk with a value
-  // that needs the exact division takes the two passes below instead.
-  if (divide.fast()) {
-    const double* x = points.col(0).data() + begin;
-    const double* y = points.col(1).data() + begin;
-    const double* z = points.col(2).data() + begin;
-    std::int64_t any = 0;
-    for (std::size_t r = 0; r < rows; ++r) {
-      std::int64_t fx, fy, fz;
-      const VoxelKey k{static_cast<std::int32_t>(divide.fast_floor(x[r], fx)),
-                       static_cast<std::int32_t>(divide.fast_floor(y[r], fy)),
-                       static_cast<std::int32_t>(divide.fast_floor(z[r], fz))};
-      any |= fx | fy | fz;
-      derive(r, k);
-    }
-    if (any >= 0) return;
-  }
-  compute(points, begin, rows, divide);
-  for (std::size_t r = 0; r < rows; ++r)
-    derive(r, VoxelKey{static_cast<std::int32_t>(axis_[0][r]), static_cast<std::int32_t>(axis_[1][r]),
-                       static_cast<std::int32_t>(axis_[2][r])});
 }
 
 std::size_t validate_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,

@@ -136,29 +136,15 @@ class ChunkKeys {
 
   /// Keys of rows [begin, begin + rows), rows <= kRows.
   void compute(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows, const FloorDivider& divide) noexcept;
-  /// Every row's block, index in its block and slot of the block grid's cache of recent blocks
-  /// (for the RAM backend's block grid), in one vectorised pass from the coordinates; the keys
-  /// themselves (operator[]) are left unspecified. A chunk with a value that needs the exact
-  /// division goes through compute() and a second pass. One pass instead of compute() and a
-  /// second pass made the batch into an empty map about 3% faster after an OctoMap call.
-  void compute_blocks(const Eigen::MatrixXd& points, Eigen::Index begin, std::size_t rows,
-                      const FloorDivider& divide) noexcept;
   /// After compute(): the key of row begin + r (meaningful for finite rows only).
   [[nodiscard]] VoxelKey operator[](std::size_t r) const {
     return {static_cast<std::int32_t>(axis_[0][r]), static_cast<std::int32_t>(axis_[1][r]),
             static_cast<std::int32_t>(axis_[2][r])};
   }
-  /// After compute_blocks(): row begin + r's block, index in it and recent-block slot.
-  [[nodiscard]] VoxelKey block(std::size_t r) const { return {block_[0][r], block_[1][r], block_[2][r]}; }
-  [[nodiscard]] int index(std::size_t r) const { return index_[r]; }
-  [[nodiscard]] std::uint32_t slot(std::size_t r) const { return slot_[r]; }
 
  private:
   std::array<std::array<std::int64_t, kRows>, 3> axis_;  // keys in the low 32 bits
   std::array<std::int64_t, kRows> flags_;                // scratch of floor_many()
-  std::array<std::array<std::int32_t, kRows>, 3> block_;
-  std::array<std::int32_t, kRows> index_;
-  std::array<std::uint32_t, kRows> slot_;
 };
 
 /// Validates a batch: sizes (also more than 2^32 - 1 rows), weights (finite, >= 0) and keys that

@@ -323,6 +323,12 @@ class BlockGrid {
 
   [[nodiscard]] const std::vector<VoxelBlock*>& blocks() const noexcept { return blocks_; }
   [[nodiscard]] std::size_t num_blocks() const noexcept { return blocks_.size(); }
+  /// Known voxels in all blocks (a walk over the blocks).
+  [[nodiscard]] std::size_t known_voxels() const noexcept {
+    std::size_t n = 0;
+    for (const VoxelBlock* b : blocks_) n += b->known;
+    return n;
+  }
   /// Voxel slots allocated (kCellVoxels per cell).
   [[nodiscard]] std::size_t num_slots() const noexcept { return cells_ * kCellVoxels; }
 

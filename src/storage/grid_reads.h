@@ -31,16 +31,25 @@ void for_each_known(const BlockGrid& grid, Fn&& fn) {
   }
 }
 
-/// The known voxels with probability > \p threshold as N x 4 rows (centre x, y, z in metres, p).
-[[nodiscard]] inline std::vector<double> occupied_rows(const BlockGrid& grid, double resolution, double threshold) {
+/// The known voxels with probability > \p threshold as flattened rows (x, y, z in metres, p), in
+/// the order for_each_known(fn) visits them (it calls fn(key, const Voxel&)); position(key) gives
+/// a row's point: the voxel centre, or a mean hit position.
+template <class ForEachKnown, class Position>
+[[nodiscard]] std::vector<double> occupied_rows(ForEachKnown&& for_each_known, double threshold, Position&& position) {
   std::vector<double> rows;
-  for_each_known(grid, [&](const VoxelKey& key, const Voxel& v) {
+  for_each_known([&](const VoxelKey& key, const Voxel& v) {
     const double p = iwlo::probability(v.log_odds);
     if (!(p > threshold)) return;
-    const Eigen::Vector3d c = key_to_center(key, resolution);
-    rows.insert(rows.end(), {c.x(), c.y(), c.z(), p});
+    const Eigen::Vector3d x = position(key);
+    rows.insert(rows.end(), {x.x(), x.y(), x.z(), p});
   });
   return rows;
+}
+
+/// occupied_rows() of a grid, at the voxel centres.
+[[nodiscard]] inline std::vector<double> occupied_rows(const BlockGrid& grid, double resolution, double threshold) {
+  return occupied_rows([&grid](auto&& fn) { for_each_known(grid, fn); }, threshold,
+                       [resolution](const VoxelKey& k) { return key_to_center(k, resolution); });
 }
 
 /// Builds the N x 4 (x, y, z, p) matrix of occupied voxels from \p rows (flattened quadruples).

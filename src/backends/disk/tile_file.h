@@ -29,8 +29,8 @@
 // The header has its own checksum so that a map can be opened by reading headers only; the
 // version is checked before that checksum, so a newer file is reported as newer, not as corrupt.
 
+#include "backends/disk/file_io.h"
 #include "storage/block_grid.h"
-#include "iwlomap/outofcore_tile_mapper.h"
 #include "iwlomap/voxel_key.h"
 
 #include <cmath>
@@ -88,40 +88,8 @@ template <class Fn>
 void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, std::uint32_t tile_voxels,
                  const std::string& path, DenseBlock& scratch, Fn&& fn);
 
-// ---- durable file operations (POSIX); each throws StorageError (kIo) naming the path ----
-
-/// The whole file.
-[[nodiscard]] std::vector<std::uint8_t> read_file(const std::string& path);
-/// Up to \p max_bytes from the start of the file, and the file's size.
-[[nodiscard]] std::vector<std::uint8_t> read_file_prefix(const std::string& path, std::size_t max_bytes,
-                                                         std::uint64_t& file_size);
-/// Writes \p data to \p temp_path (replacing it), fsync'ed when \p sync; the file that will take
-/// its place, \p final_path, is untouched and is the path errors name. On failure the temporary
-/// file is removed.
-void write_temp_file(const std::string& temp_path, const std::string& final_path, const std::vector<std::uint8_t>& data,
-                     bool sync);
-/// Makes a complete temporary file the real one: fsync (unless \p already_synced), then rename
-/// over \p final_path. On failure both files are left as they are. The caller fsyncs the directory.
-void commit_temp_file(const std::string& temp_path, const std::string& final_path, bool already_synced);
-/// write_temp_file() with fsync, then commit_temp_file().
-void write_file_durably(const std::string& temp_path, const std::string& final_path,
-                        const std::vector<std::uint8_t>& data);
-/// Opens (creating and emptying) a scratch file for reading and writing; returns the descriptor.
-[[nodiscard]] int create_scratch_file(const std::string& path);
-/// Writes all of \p data at \p offset of \p fd (\p path names the file in errors).
-void write_at(int fd, const std::vector<std::uint8_t>& data, std::uint64_t offset, const std::string& path);
-/// Reads exactly \p size bytes at \p offset of \p fd into \p out (replaced).
-void read_at(int fd, std::uint64_t offset, std::size_t size, const std::string& path, std::vector<std::uint8_t>& out);
-/// fsync of a directory, so that renames and unlinks in it are durable.
-void sync_directory(const std::string& directory);
-/// Removes a file; a missing file is not an error.
-void remove_file(const std::string& path);
-
 /// "0x1234abcd", for messages.
 [[nodiscard]] std::string hex32(std::uint32_t v);
-
-/// Throws StorageError (kCorrupt) "tile file <path> is corrupt: <what>".
-[[noreturn]] void throw_corrupt(const std::string& path, const std::string& what);
 
 // ---- little-endian access ----
 

@@ -2,6 +2,7 @@
 #include "iwlomap/probability_updater.h"
 
 #include "integrate/absolute_log_odds.h"
+#include "integrate/batch_apply.h"
 #include "integrate/batch_input.h"
 #include "integrate/voxel_update.h"
 #include "storage/block_grid.h"
@@ -14,42 +15,10 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
-#include <exception>
 #include <stdexcept>
 #include <thread>
 
 namespace iwlomap {
-
-namespace {
-
-/// Working memory of one batch_update_iwlo() call: a group of rows resolved to their blocks and
-/// voxels. One per thread, kept for the thread's life and shared by all its maps (a call never
-/// runs inside another on one thread): allocating it per map put its 282 KiB of fresh heap pages,
-/// and their page faults, into the first batch of every map.
-struct BatchScratch {
-  static constexpr std::size_t kChunkRows = detail::ChunkKeys::kRows;
-  // Rows whose blocks are found, and missing cells allocated, before any is updated: over 16
-  // chunks of 512 rows a block's new cells come at once far more often (the synthetic scan into
-  // an empty map: 4,665 cell allocations instead of 11,023 for chunks alone, 2,837 cells copied
-  // to a grown array instead of 24,642).
-  static constexpr std::size_t kGroupRows = 16 * kChunkRows;
-  struct Target {
-    detail::VoxelBlock* block;
-    detail::Voxel* voxel;  // set once the group's cells are all allocated
-    int index;             // index_in_block()
-    std::uint32_t row;     // in the batch
-  };
-  detail::ChunkKeys keys;  // of one chunk's rows
-  std::array<Target, kGroupRows> targets;
-  std::array<detail::VoxelBlock*, kGroupRows> blocks;  // the group's blocks with cells to add
-};
-
-BatchScratch& batch_scratch() {
-  thread_local const std::unique_ptr<BatchScratch> scratch = std::make_unique<BatchScratch>();
-  return *scratch;
-}
-
-}  // namespace
 
 struct ProbabilityUpdater::Impl {
   explicit Impl(double res) : resolution(res) {}
@@ -63,116 +32,20 @@ struct ProbabilityUpdater::Impl {
     if (detail::observe_voxel(b, v, intensity, occupied_flag, weight, updater)) ++known;
   }
 
-  // The batch is validated first (nothing changes when it throws for its input), then applied in
-  // groups of rows (BatchScratch::kGroupRows). For each group, chunk by chunk: keys, blocks and
-  // in-block indices in one vectorised pass; then every row's block (allocating new blocks),
-  // noting in the block the cells it lacks. Then those cells, allocated once per block and group
-  // (allocating each cell as its row came took 35,865 calls instead of 4,665 for the synthetic
-  // scan's batch into an empty map); then the updates, with the voxel of a later row prefetched,
-  // which hides most cache misses on large maps. The price: when memory runs out
-  // (std::bad_alloc) the groups before the failing one stay applied; the map stays consistent
-  // (voxel states, counts, skipped rows).
+  // The batch is validated first (nothing changes when it throws for its input), then applied by
+  // the shared kernel with the grid's own block look-up.
   void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                    const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights) {
     const std::size_t skip = detail::validate_batch(points, intensities, is_occupied, weights, resolution);
     if (points.rows() == 0) return;
-    if (const std::exception_ptr e = apply_rows(points, intensities, is_occupied, weights, skip))
-      std::rethrow_exception(e);
-  }
-
-  // apply_batch() after the validation, \p skip rows being skipped. Compiled per CPU level
-  // (IWLOMAP_CPU_CLONES) with everything it inlines: the x86-64-v4 copy filled an empty map with
-  // the synthetic scan's batch 3-5% faster here (docs/benchmarks.md, sixth session). Like every
-  // function with such copies it lets no exception out (see IWLOMAP_CPU_CLONES): it returns it.
-  // Only the parts that can fail run inside a try: one around the whole body made the copy spill
-  // values in the update loop (the same batch again 0.61-0.64 instead of 0.51-0.55 ms).
-  IWLOMAP_CPU_CLONES std::exception_ptr apply_rows(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
-                                                   const std::vector<bool>& is_occupied,
-                                                   const Eigen::VectorXd* weights, std::size_t skip) noexcept {
-    const detail::BatchValues in{intensities, is_occupied, weights};
-    const detail::FloorDivider divide(resolution);
-    const Eigen::Index n = points.rows();
-    BatchScratch* scratch_of_thread = nullptr;
-    try {
-      scratch_of_thread = &batch_scratch();
-    } catch (...) {
-      return std::current_exception();
-    }
-    BatchScratch& work = *scratch_of_thread;
-    detail::ChunkKeys& keys = work.keys;
-    auto& targets = work.targets;
-    auto& blocks = work.blocks;
-    constexpr auto kGroupRows = static_cast<Eigen::Index>(BatchScratch::kGroupRows);
-    constexpr auto kChunkRows = static_cast<Eigen::Index>(BatchScratch::kChunkRows);
-    for (Eigen::Index group = 0; group < n; group += kGroupRows) {
-      const Eigen::Index group_end = std::min<Eigen::Index>(n, group + kGroupRows);
-      std::size_t count = 0;
-      std::size_t num_blocks = 0;     // blocks with cells to add, in `blocks`
-      std::size_t group_skipped = 0;  // added to `skipped` once the group is applied
-      try {
-        for (Eigen::Index begin = group; begin < group_end; begin += kChunkRows) {
-          const Eigen::Index end = std::min<Eigen::Index>(group_end, begin + kChunkRows);
-          keys.compute_blocks(points, begin, static_cast<std::size_t>(end - begin), divide);
-          for (Eigen::Index i = begin; i < end; ++i) {
-            const auto r = static_cast<std::size_t>(i - begin);
-            if (skip != 0 && !detail::row_is_finite(points, intensities, i)) {
-              ++group_skipped;
-              continue;
-            }
-            // Straight to the grid's cache of recent blocks, not through a last-block accessor: a
-            // scan's rows change block every two or three rows, and that branch mispredicted.
-            detail::VoxelBlock& b = grid.get_or_create(keys.block(r), keys.slot(r));
-            const int index = keys.index(r);
-            const int cell = index >> detail::kCellShift;
-            detail::Voxel* v = nullptr;
-            if (!b.has_cell(cell)) {
-              const bool first = !b.pending.any();  // the block's first missing cell
-              b.note_pending(cell);
-              blocks[num_blocks] = &b;
-              num_blocks += first ? 1 : 0;
-            } else {
-              v = &b.existing(index);
-            }
-            targets[count++] = {&b, v, index, static_cast<std::uint32_t>(i)};
-          }
-        }
-        for (std::size_t d = 0; d < num_blocks; ++d) {
-          grid.ensure_cells(*blocks[d], blocks[d]->pending);
-          blocks[d]->pending = {};
-        }
-      } catch (...) {
-        // Finding a block or allocating cells ran out of memory: no note may outlive the call.
-        for (std::size_t d = 0; d < num_blocks; ++d) blocks[d]->pending = {};
-        return std::current_exception();
-      }
-      // The updates, with the voxel kAhead rows ahead prefetched. When cells were added, they may
-      // have moved their block's cells: every address is taken again, kAhead rows ahead (a pass of
-      // its own over the rows before the updates made the batch into an empty map about 2% slower,
-      // and so did one loop for both cases).
-      constexpr std::size_t kAhead = 64;
-      const auto update = [&](const BatchScratch::Target& t) {
-        apply_voxel(*t.block, *t.voxel, in.intensity(t.row), in.occupied_flag(t.row), in.weight(t.row));
-      };
-      if (num_blocks != 0) {
-        for (std::size_t j = 0; j < std::min(count, kAhead); ++j)
-          targets[j].voxel = &targets[j].block->existing(targets[j].index);
-        for (std::size_t j = 0; j < count; ++j) {
-          if (j + kAhead < count) {
-            BatchScratch::Target& ahead = targets[j + kAhead];
-            ahead.voxel = &ahead.block->existing(ahead.index);
-            __builtin_prefetch(ahead.voxel, 1);
-          }
-          update(targets[j]);
-        }
-      } else {
-        for (std::size_t j = 0; j < count; ++j) {
-          if (j + kAhead < count) __builtin_prefetch(targets[j + kAhead].voxel, 1);
-          update(targets[j]);
-        }
-      }
-      skipped += group_skipped;
-    }
-    return nullptr;
+    struct Locate {
+      detail::BlockGrid& grid_;
+      detail::VoxelBlock& block(std::size_t, const VoxelKey& block_key) { return grid_.get_or_create(block_key); }
+      detail::BlockGrid& grid(std::size_t) { return grid_; }
+    };
+    detail::apply_batch(detail::PointRows(points, intensities, resolution, skip != 0),
+                        static_cast<std::size_t>(points.rows()), Locate{grid}, {intensities, is_occupied, weights},
+                        updater, {known, skipped});
   }
 
   void set(const IwloParams& p) { updater = detail::Updater(p); }
@@ -325,15 +198,11 @@ Eigen::MatrixXd ProbabilityUpdater::get_occupied_mean_positions(double min_proba
     throw std::logic_error(
         "iwlomap: get_occupied_mean_positions() needs hit accumulation, which is off (set_hit_accumulation(true))");
   // The same walk as get_occupied_voxels(), so the rows come in the same order.
-  std::vector<double> rows;
-  detail::for_each_known(m.grid, [&](const VoxelKey& key, const detail::Voxel& v) {
-    const double p = iwlo::probability(v.log_odds);
-    if (!(p > threshold)) return;
-    const detail::HitCell* c = m.hits->find(key);
-    const Eigen::Vector3d x = c != nullptr ? m.hits->mean_position(key, *c) : key_to_center(key, m.resolution);
-    rows.insert(rows.end(), {x.x(), x.y(), x.z(), p});
-  });
-  return detail::rows_to_matrix(rows);
+  return detail::rows_to_matrix(detail::occupied_rows(
+      [&m](auto&& fn) { detail::for_each_known(m.grid, fn); }, threshold, [&m](const VoxelKey& key) {
+        const detail::HitCell* c = m.hits->find(key);
+        return c != nullptr ? m.hits->mean_position(key, *c) : key_to_center(key, m.resolution);
+      }));
 }
 
 MemoryStats ProbabilityUpdater::get_memory_usage() const {

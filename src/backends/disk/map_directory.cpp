@@ -1,0 +1,257 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#include "backends/disk/map_directory.h"
+
+#include "backends/disk/file_io.h"
+#include "backends/disk/tile_file.h"
+#include "model/checks.h"
+#include "storage/block_grid.h"
+
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+namespace iwlomap::detail {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr const char* kMetaName = "iwlomap_map.meta";
+constexpr const char* kLockName = "iwlomap_map.lock";
+constexpr const char* kMetaFirstLine = "iwlomap tile map";
+constexpr const char* kTilePrefix = "tile_";
+constexpr const char* kTileSuffix = ".iwt";
+// Tiles above 8192 voxels (1024 blocks) per edge could hold more than 2^32 block records.
+constexpr std::uint32_t kMaxTileVoxels = 8192;
+
+bool ends_with(const std::string& s, const std::string& suffix) {
+  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+std::string hexfloat(double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%a", v);
+  return buf;
+}
+
+std::vector<std::uint8_t> encode_meta(const MapMeta& m) {
+  std::ostringstream s;
+  s.precision(17);
+  s << kMetaFirstLine << "\n"
+    << "format_version " << m.version << "\n"
+    << "resolution " << hexfloat(m.resolution) << "\n"
+    << "tile_size " << hexfloat(m.tile_size) << "\n"
+    << "tile_voxels " << m.tile_voxels << "\n"
+    << "# resolution " << m.resolution << " m, tiles of " << m.tile_size << " m (" << m.tile_voxels
+    << " voxels); tiles are tile_<x>_<y>_<z>.iwt, see src/backends/disk/tile_file.h\n";
+  const std::string text = s.str();
+  return {text.begin(), text.end()};
+}
+
+[[noreturn]] void throw_bad_meta(const std::string& path, const std::string& what) {
+  throw StorageError(StorageError::Kind::kCorrupt, path, "iwlomap: map metadata " + path + " is corrupt: " + what);
+}
+
+}  // namespace
+
+std::string tile_file_name(const VoxelKey& t) {
+  return kTilePrefix + std::to_string(t.x) + "_" + std::to_string(t.y) + "_" + std::to_string(t.z) + kTileSuffix;
+}
+
+// Strict: only the exact names tile_file_name() produces, so no other file is ever taken for a
+// tile (or deleted by clear()).
+bool parse_tile_file_name(const std::string& name, VoxelKey& t) {
+  if (name.rfind(kTilePrefix, 0) != 0 || !ends_with(name, kTileSuffix)) return false;
+  const std::string body = name.substr(5, name.size() - 5 - 4);
+  long v[3];
+  const char* p = body.c_str();
+  for (int i = 0; i < 3; ++i) {
+    char* end = nullptr;
+    errno = 0;
+    v[i] = std::strtol(p, &end, 10);
+    if (end == p || errno != 0 || v[i] < std::numeric_limits<std::int32_t>::min() ||
+        v[i] > std::numeric_limits<std::int32_t>::max())
+      return false;
+    p = end;
+    if (i < 2) {
+      if (*p != '_') return false;
+      ++p;
+    }
+  }
+  if (*p != '\0') return false;
+  t = {static_cast<std::int32_t>(v[0]), static_cast<std::int32_t>(v[1]), static_cast<std::int32_t>(v[2])};
+  return tile_file_name(t) == name;
+}
+
+std::uint32_t tile_voxels_for(double resolution, double tile_size) {
+  if (!(std::isfinite(tile_size) && tile_size > 0.0))
+    throw std::invalid_argument("iwlomap: tile_size must be finite and > 0, got " + detail::describe("tile_size", tile_size));
+  const double voxels = tile_size / resolution;
+  const double whole = std::round(voxels);
+  const bool integral = std::abs(voxels - whole) <= 1e-9 * std::max(1.0, whole);
+  const auto blocks = static_cast<long long>(whole) / detail::kBlockEdge;
+  if (!integral || whole < detail::kBlockEdge || whole > kMaxTileVoxels ||
+      static_cast<long long>(whole) % detail::kBlockEdge != 0) {
+    std::ostringstream s;
+    s.precision(17);
+    s << "iwlomap: tile_size / resolution must be a whole multiple of 8 voxels (one 8^3 block) between 8 and "
+      << kMaxTileVoxels << ", got tile_size = " << tile_size << " and resolution = " << resolution << " ("
+      << voxels << " voxels)";
+    if (blocks >= 1) s << "; e.g. tile_size = " << static_cast<double>(blocks * detail::kBlockEdge) * resolution;
+    throw std::invalid_argument(s.str());
+  }
+  return static_cast<std::uint32_t>(whole);
+}
+
+MapMeta parse_meta(const std::vector<std::uint8_t>& bytes, const std::string& path) {
+  std::istringstream in(std::string(bytes.begin(), bytes.end()));
+  std::string line;
+  if (!std::getline(in, line) || line != kMetaFirstLine) throw_bad_meta(path, "it does not start with '" + std::string(kMetaFirstLine) + "'");
+  MapMeta m;
+  bool have_version = false, have_res = false, have_size = false, have_voxels = false;
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    const auto space = line.find(' ');
+    if (space == std::string::npos) throw_bad_meta(path, "line '" + line + "' has no value");
+    const std::string key = line.substr(0, space);
+    const std::string value = line.substr(space + 1);
+    char* end = nullptr;
+    errno = 0;
+    if (key == "format_version" || key == "tile_voxels") {
+      const unsigned long v = std::strtoul(value.c_str(), &end, 10);
+      if (end == value.c_str() || *end != '\0' || errno != 0 || v > std::numeric_limits<std::uint32_t>::max())
+        throw_bad_meta(path, "bad " + key + " '" + value + "'");
+      (key == "format_version" ? m.version : m.tile_voxels) = static_cast<std::uint32_t>(v);
+      (key == "format_version" ? have_version : have_voxels) = true;
+    } else if (key == "resolution" || key == "tile_size") {
+      const double v = std::strtod(value.c_str(), &end);
+      if (end == value.c_str() || *end != '\0' || !std::isfinite(v) || v <= 0.0)
+        throw_bad_meta(path, "bad " + key + " '" + value + "'");
+      (key == "resolution" ? m.resolution : m.tile_size) = v;
+      (key == "resolution" ? have_res : have_size) = true;
+    }
+    // Other keys are ignored: a later minor version may add informative ones.
+  }
+  if (!have_version) throw_bad_meta(path, "format_version is missing");
+  if (m.version > detail::kTileFormatVersion)
+    throw StorageError(StorageError::Kind::kNewerVersion, path,
+                       "iwlomap: map metadata " + path + " has format version " + std::to_string(m.version) +
+                           ", newer than the version " + std::to_string(detail::kTileFormatVersion) +
+                           " this build reads; open the map with a newer iwlomap");
+  if (m.version == 0) throw_bad_meta(path, "format_version 0");
+  if (!have_res || !have_size || !have_voxels) throw_bad_meta(path, "resolution, tile_size or tile_voxels is missing");
+  return m;
+}
+
+MapDirectory::MapDirectory(std::string directory, double resolution, double tile_size, std::uint32_t tile_voxels)
+    : dir_(std::move(directory)) {
+  std::error_code ec;
+  fs::create_directories(dir_, ec);
+  if (ec || !fs::is_directory(dir_))
+    throw StorageError(StorageError::Kind::kIo, dir_,
+                       "iwlomap: cannot use " + dir_ + " as a map directory: " +
+                           (ec ? ec.message() : std::string("it exists and is not a directory")));
+  lock();
+  try {
+    for (fs::directory_iterator it(dir_, ec), end; !ec && it != end; it.increment(ec)) {
+      std::error_code type_ec;
+      if (!it->is_regular_file(type_ec)) continue;  // a directory named like a tile is not ours
+      const std::string name = it->path().filename().string();
+      VoxelKey t;
+      if (parse_tile_file_name(name, t))
+        tile_names_.push_back(name);
+      else if ((ends_with(name, kTempSuffix) &&
+                (name == std::string(kMetaName) + kTempSuffix ||
+                 parse_tile_file_name(name.substr(0, name.size() - 4), t))) ||
+               name == kStagingName || name == std::string(kStagingName) + ".new")
+        leftovers_.push_back(name);
+    }
+    if (ec) throw StorageError(StorageError::Kind::kIo, dir_, "iwlomap: cannot list map directory " + dir_ + ": " + ec.message());
+    std::sort(tile_names_.begin(), tile_names_.end());
+
+    const std::string meta_path = path_of(kMetaName);
+    if (fs::exists(meta_path, ec)) {
+      std::uint64_t size = 0;
+      const MapMeta m = parse_meta(read_file_prefix(meta_path, 1 << 16, size), meta_path);
+      meta_bytes_ = size;
+      if (m.resolution != resolution || m.tile_size != tile_size || m.tile_voxels != tile_voxels) {
+        std::ostringstream s;
+        s.precision(17);
+        s << "iwlomap: the map in " << dir_ << " was created with resolution = " << m.resolution
+          << " and tile_size = " << m.tile_size << ", not resolution = " << resolution
+          << " and tile_size = " << tile_size << "; open it with the stored values";
+        throw std::invalid_argument(s.str());
+      }
+    } else {
+      if (!tile_names_.empty())
+        throw StorageError(StorageError::Kind::kCorrupt, meta_path,
+                           "iwlomap: " + dir_ + " holds tile files (" + tile_names_.front() +
+                               ", ...) but no map metadata " + meta_path + "; its resolution and tile size are unknown");
+      MapMeta m;
+      m.version = kTileFormatVersion;
+      m.resolution = resolution;
+      m.tile_size = tile_size;
+      m.tile_voxels = tile_voxels;
+      const std::vector<std::uint8_t> bytes = encode_meta(m);
+      write_file_durably(meta_path + kTempSuffix, meta_path, bytes);
+      sync_directory(dir_);
+      meta_bytes_ = bytes.size();
+    }
+  } catch (...) {
+    ::close(lock_fd_);
+    throw;
+  }
+}
+
+MapDirectory::~MapDirectory() {
+  if (lock_fd_ >= 0) ::close(lock_fd_);
+}
+
+std::string MapDirectory::path_of(const std::string& name) const { return (fs::path(dir_) / name).string(); }
+
+void MapDirectory::remove_leftovers() {
+  for (const std::string& name : leftovers_) remove_file(path_of(name));
+  leftovers_.clear();
+}
+
+void MapDirectory::lock() {
+  const std::string path = path_of(kLockName);
+  lock_fd_ = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (lock_fd_ < 0)
+    throw StorageError(StorageError::Kind::kIo, path, "iwlomap: cannot create lock file " + path + ": " + std::strerror(errno));
+  int r;
+  do r = ::flock(lock_fd_, LOCK_EX | LOCK_NB);
+  while (r != 0 && errno == EINTR);
+  if (r != 0) {
+    const int err = errno;
+    ::close(lock_fd_);
+    lock_fd_ = -1;
+    if (err == EWOULDBLOCK)
+      throw StorageError(StorageError::Kind::kLocked, dir_,
+                         "iwlomap: the map directory " + dir_ + " is already open in another mapper (this process or another)");
+    throw StorageError(StorageError::Kind::kIo, path, "iwlomap: cannot lock " + path + ": " + std::strerror(err));
+  }
+}
+
+MapMeta MapDirectory::read_meta(const std::string& directory) {
+  const std::string meta_path = (fs::path(directory) / kMetaName).string();
+  std::error_code ec;
+  if (!fs::exists(meta_path, ec))
+    throw StorageError(StorageError::Kind::kIo, meta_path,
+                       "iwlomap: " + directory + " holds no iwlomap map (" + meta_path + " is missing)");
+  std::uint64_t size = 0;
+  return parse_meta(read_file_prefix(meta_path, 1 << 16, size), meta_path);
+}
+
+}  // namespace iwlomap::detail
