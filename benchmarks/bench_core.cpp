@@ -58,6 +58,8 @@
 
 namespace {
 
+using iwlomap::bench::median;
+
 // OctoMap's default hit probability is 0.7, i.e. log-odds ln(0.7 / 0.3) = 0.847; 0.85 is that
 // increment, so updateNode() does the work of one occupied observation per point, as
 // batch_update_iwlo() does.
@@ -161,13 +163,6 @@ struct Sample {
 
 Sample elapsed(const Stamp& t0, const Stamp& t1) {
   return {std::chrono::duration<double, std::milli>(t1.wall - t0.wall).count(), (t1.cpu_ns - t0.cpu_ns) * 1e-6};
-}
-
-double median(std::vector<double> v) {
-  if (v.empty()) return std::nan("");
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
 // (into an empty map, again into the map that now holds the same input)
@@ -657,6 +652,7 @@ int main(int argc, char** argv) {
   }
 
   std::printf("bench_core: iwlomap core engine (RAM backend) vs OctoMap %s\n", IWLOMAP_BENCH_OCTOMAP_VERSION);
+  iwlomap::bench::retain_map_memory();
   std::printf("  resolution %.3f m, %d repetition(s) of the batch, %d of each scan measurement (median reported), "
               "single thread\n", o.resolution, o.batch_reps, o.reps);
   std::printf("  compiler %s, %s\n", __VERSION__,

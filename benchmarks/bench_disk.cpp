@@ -32,6 +32,8 @@
 #include "iwlomap/outofcore_tile_mapper.h"
 #include "iwlomap/probability_updater.h"
 
+#include "bench_util.h"
+
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
@@ -54,6 +56,8 @@
 #include <vector>
 
 namespace {
+
+using iwlomap::bench::median;
 
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
@@ -125,11 +129,6 @@ double thread_cpu_s() {
   timespec t{};
   ::clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
   return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
-}
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v.size() % 2 == 1 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
 }
 
 struct Result {
@@ -269,6 +268,7 @@ int main(int argc, char** argv) {
                 "(%d voxels)\n\n",
                 o.pings, kBeams * kSlices, o.pings * kStep, kResolution, kTileSize,
                 static_cast<int>(std::lround(kTileSize / kResolution)));
+    iwlomap::bench::retain_map_memory();
 
     // A probe: how many tiles one ping touches, i.e. the working set of the stream.
     Job probe{true, true, 4096, 1, fresh_dir()};

@@ -45,6 +45,8 @@
 
 namespace {
 
+using iwlomap::bench::median;
+
 using Clock = std::chrono::steady_clock;
 constexpr double kMaxRange = 25.0;
 constexpr float kHitLogOdds = 0.85f;  // OctoMap's default hit, ln(0.7 / 0.3)
@@ -95,12 +97,6 @@ Options parse_options(int argc, char** argv) {
   }
   if (o.quick && !reps_given) o.reps = 1;
   return o;
-}
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
 // Every timed region starts from a settled heap (see settle_heap()).
@@ -275,6 +271,7 @@ int main(int argc, char** argv) try {
 
   std::printf("bench_octomap_backend: resolution %.3g m, %d repetitions (medians), OctoMap %s\n", r, opt.reps,
               IWLOMAP_BENCH_OCTOMAP_VERSION);
+  iwlomap::bench::retain_map_memory();
   std::printf("input: 3 synthetic scans, %zu points in all, max range %.0f m; batch of %ld random points\n\n",
               scan_points, kMaxRange, static_cast<long>(batch.points.rows()));
   std::printf("| %-44s | %12s | %15s | %11s | %12s | %13s |\n", "measurement", "RAM", "OctoMap backend",

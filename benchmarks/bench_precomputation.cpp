@@ -20,6 +20,8 @@
 #include "iwlomap/precomputation_grid.h"
 #include "iwlomap/precomputation_stack.h"
 
+#include "bench_util.h"
+
 #include <Eigen/Core>
 
 #include <algorithm>
@@ -35,6 +37,8 @@
 
 namespace {
 
+using iwlomap::bench::median;
+
 using Clock = std::chrono::steady_clock;
 
 double seconds_since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
@@ -43,11 +47,6 @@ double thread_cpu_seconds() {
   timespec t{};
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
   return static_cast<double>(t.tv_sec) + static_cast<double>(t.tv_nsec) * 1e-9;
-}
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
 }
 
 enum class Content { kRandom, kMapLike };

@@ -106,6 +106,7 @@ int main(int argc, char** argv) {
   std::printf("bench_threads: %d synthetic scans of %lld rays, resolution %.3f m, median of %d, %u hardware threads\n",
               scan_count, static_cast<long long>(scans.front().points.rows()), resolution, reps,
               std::thread::hardware_concurrency());
+  iwlomap::bench::retain_map_memory();
 
   std::vector<double> one, two, one_steady, two_steady;
   for (int r = 0; r < reps; ++r) {  // alternate so both see the same machine load

@@ -3,8 +3,13 @@
 
 // Small timing helpers shared by the benchmark programs.
 
+#include "iwlomap/map_memory.h"
+
 #include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <cstddef>
+#include <cstdio>
 #include <cstdlib>
 #include <vector>
 
@@ -17,10 +22,20 @@ using Clock = std::chrono::steady_clock;
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-/// The median of \p v (the upper one of an even count); \p v must not be empty.
+/// The median of \p v (the mean of the middle two of an even count; NaN when empty).
 [[nodiscard]] inline double median(std::vector<double> v) {
+  if (v.empty()) return std::nan("");
   std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
+  const std::size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+/// Lets maps reuse the memory of the maps destroyed before them (iwlomap/map_memory.h), as a
+/// program that builds one map after another would, so that rounds measure the library rather
+/// than the kernel's first touch of fresh pages; says so on standard output.
+inline void retain_map_memory() {
+  iwlomap::set_retained_map_memory(std::size_t{64} << 20);
+  std::printf("  maps reuse the memory of destroyed maps (set_retained_map_memory(64 MiB))\n");
 }
 
 /// Call between timed regions (untimed). An octree freed node by node leaves glibc's fast bins

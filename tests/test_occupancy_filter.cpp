@@ -2,6 +2,7 @@
 // OccupancyFilter: the PCL filter contract, accumulation over frames, use inside a PCL pipeline,
 // and integration on the recorded lidar and sonar data.
 
+#include <Eigen/Geometry>
 #include <iwlomap/filters/occupancy_filter.h>
 #include <iwlomap/probability_updater.h>
 

@@ -718,7 +718,7 @@ TEST(OutofcoreTileMapper, StagesEvictedTilesAndCommitsThemOnlyAtFlush) {
   EXPECT_EQ(tile_files(dir).size(), 2u);
 }
 
-// The record layout is part of the file format (src/detail/tile_file.h), whatever the in-memory
+// The record layout is part of the file format (src/backends/disk/tile_file.h), whatever the in-memory
 // layout of a block: a mask bit x + 8 y + 64 z inside the block, the voxels in that order.
 TEST(OutofcoreTileMapper, WritesBlockRecordsInTheDocumentedVoxelOrder) {
   const TempDir tmp;

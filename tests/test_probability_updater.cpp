@@ -6,7 +6,6 @@
 #include "iwlomap/ray_caster.h"
 #include "iwlomap/synthetic_scan.h"
 
-#include "storage/block_grid.h"
 
 #include <gtest/gtest.h>
 
@@ -747,43 +746,10 @@ TEST(ProbabilityUpdater, PutsPointsOnAndBetweenVoxelFacesInVoxelOfWorldToKey) {
   EXPECT_EQ(got, expected);
 }
 
-// The block layout behind the RAM grid: index_in_block() and voxel_of() are inverse, a cell is
-// 2 x 2 x 1 voxels at four consecutive indices, and cells_of_mask_word() finds, for any 64-bit
-// word of a 512-bit block mask, exactly the cells holding a set bit (checked bit by bit).
-TEST(BlockLayout, CellsOfIndicesAndMaskWordsMatchBitByBit) {
-  using namespace detail;
-  const VoxelKey block{-3, 5, -1};
-  std::set<int> seen;
-  for (int x = 0; x < 8; ++x)
-    for (int y = 0; y < 8; ++y)
-      for (int z = 0; z < 8; ++z) {
-        const VoxelKey k{block.x * 8 + x, block.y * 8 + y, block.z * 8 + z};
-        const int i = index_in_block(k);
-        ASSERT_TRUE(i >= 0 && i < kBlockVoxels);
-        EXPECT_EQ(voxel_of(block, i), k);
-        seen.insert(i);
-        // The voxels of one cell share x / 2, y / 2 and z.
-        EXPECT_EQ(i >> kCellShift, ((x >> 1) & 3) | (((y >> 1) & 3) << 2) | (z << 4));
-      }
-  EXPECT_EQ(seen.size(), static_cast<std::size_t>(kBlockVoxels));
-  std::mt19937_64 rng(5u);
-  for (int round = 0; round < 2000; ++round) {
-    // Sparse and dense words: a few random bits, or all but a few.
-    std::uint64_t word = 0;
-    const int bits = static_cast<int>(rng() % 6);
-    for (int b = 0; b < bits; ++b) word |= std::uint64_t{1} << (rng() % 64);
-    if (round % 3 == 0) word = ~word;
-    const int w = round % 8;
-    const CellMask got = cells_of_mask_word(word, w);
-    CellMask want;
-    for (int b = 0; b < 64; ++b)
-      if ((word >> b) & 1u) want |= CellMask::of((w * 64 + b) >> kCellShift);
-    ASSERT_EQ(got.word, want.word) << "word " << word << " at " << w;
-  }
-}
-
-// Maps reuse the memory of destroyed maps (see block_grid.cpp): nothing of an old map may show.
+// Maps reuse the memory of destroyed maps while another map lives (see map_memory.h): nothing of
+// an old map may show.
 TEST(ProbabilityUpdater, StartsEmptyWhenMemoryOfDestroyedMapsIsReused) {
+  const ProbabilityUpdater keeper(0.1);  // keeps the process's slab cache alive
   std::mt19937 rng(11u);
   std::uniform_real_distribution<double> pos(-20.0, 20.0);
   Eigen::MatrixXd big(200000, 3);

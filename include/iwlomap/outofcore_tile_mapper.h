@@ -34,6 +34,14 @@ class StorageError : public std::runtime_error {
   std::string path_;
 };
 
+/// What the metadata of a map directory says (OutofcoreTileMapper::read_map_info()).
+struct DiskMapInfo {
+  double resolution = 0.0;    ///< voxel edge in metres
+  double tile_size = 0.0;     ///< tile edge in metres
+  size_t tile_voxels = 0;     ///< tile edge in voxels
+  unsigned format_version = 0;
+};
+
 /// The out-of-core backend. Space is cut into cubic tiles of `tile_size` metres; each tile that
 /// holds a known voxel is one file `tile_<x>_<y>_<z>.iwt` of sparse 8^3 block records in the map
 /// directory, beside a small metadata file `iwlomap_map.meta` (format version, resolution, tile
@@ -84,14 +92,6 @@ class StorageError : public std::runtime_error {
 ///
 /// Non-copyable, movable; a moved-from object throws std::logic_error from every method except
 /// destruction and assignment. Moving is not synchronised: do not move a mapper other threads use.
-/// What the metadata of a map directory says (OutofcoreTileMapper::read_map_info()).
-struct DiskMapInfo {
-  double resolution = 0.0;    ///< voxel edge in metres
-  double tile_size = 0.0;     ///< tile edge in metres
-  size_t tile_voxels = 0;     ///< tile edge in voxels
-  unsigned format_version = 0;
-};
-
 class OutofcoreTileMapper final : public BackendBase {
  public:
   /// Reads the metadata of the map in \p directory without opening the map (no lock, no tiles),

@@ -15,8 +15,8 @@ namespace iwlomap {
 /// allocated the first time one of their voxels is observed, so a surface costs about what it
 /// covers and free space fills whole blocks. A voxel costs 8 bytes (float log-odds, uint16
 /// observation count, 2 spare), a block a 192-byte header. Keys are int32, so a map at 0.05 m
-/// spans +-107,000 km. The memory of destroyed maps (up to 64 MiB in all) is kept for the next
-/// map of the process, which then skips the kernel's first-touch cost.
+/// spans +-107,000 km. Memory given back by a map is reused by the process's other maps (see
+/// map_memory.h).
 ///
 /// Not thread-safe: one thread at a time may call a mutating method; const methods may run
 /// concurrently with each other. Non-copyable, movable; a moved-from object throws
@@ -50,7 +50,7 @@ class ProbabilityUpdater final : public BackendBase {
   /// Hit statistics (see hit_statistics.h for what counts): kept in a side structure of 32 bytes
   /// per voxel (8^3 blocks, about 4x the map's own memory), allocated only while accumulation is
   /// on, and counted by insert_scan() in a second pass over the rays on the calling thread
-  /// (measured 1.6-2.7x the single-thread time of a 64k-ray scan at 0.1 m).
+  /// (which costs more than the scan itself: docs/benchmarks.md).
   void set_hit_accumulation(bool enabled) override;
   [[nodiscard]] bool get_hit_accumulation() const override;
   [[nodiscard]] std::optional<HitStatistics> hit_statistics(const Eigen::Vector3d& point) const override;

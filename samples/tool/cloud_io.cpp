@@ -3,6 +3,7 @@
 
 #include "args.h"
 
+#include <Eigen/Geometry>
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/conversions.h>
 #include <pcl/io/pcd_io.h>

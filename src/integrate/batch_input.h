@@ -21,8 +21,8 @@
 namespace iwlomap::detail {
 
 /// One observation of a batch, ready to apply: its voxel and its row in the input, where the
-/// intensity, flag and weight stay (16 bytes instead of 40: a batch's observations are written
-/// once and read once, and for large batches that traffic was a third of the update).
+/// intensity, flag and weight stay (16 bytes: a batch's observations are written once and read
+/// once, so their size is memory traffic).
 struct Observation {
   VoxelKey key;
   std::uint32_t row;
@@ -39,8 +39,8 @@ struct BatchValues {
   [[nodiscard]] double weight(std::uint32_t row) const { return weights != nullptr ? (*weights)[row] : 1.0; }
 };
 
-/// floor(x / r) without a division per coordinate (three divisions were a third of a batch
-/// update). x * (1 / r) differs from the correctly rounded x / r by at most a few units in the
+/// floor(x / r) without a division per coordinate (a division costs about as much as the rest of
+/// a point's key). x * (1 / r) differs from the correctly rounded x / r by at most a few units in the
 /// last place, so their floors differ only when the quotient lies within that distance of an
 /// integer; there, and whenever 1 / r is not an ordinary number or the quotient is beyond the
 /// int32 range, the division is done. The results are exactly coordinate_to_key()'s.
@@ -98,8 +98,7 @@ class FloorDivider {
   /// z = 0), whose tie rounds to the even 0, and 2^-1000 <= |q| < 0.5 (the coordinate 1e-16 of a
   /// beam at an azimuth of 90 degrees), where x / r has q's sign and floor(x / r) is 0 or -1.
   /// The other values near a voxel face, and every value when 1 / r is not ordinary, go through
-  /// operator() afterwards, one by one (a chunk of the synthetic scan with one such value paid a
-  /// second loop over all its values: 4% of a batch update).
+  /// operator() afterwards, one by one.
   void floor_many(const double* x, std::size_t n, std::int64_t* out, std::int64_t* flags) const {
     std::int64_t any = 0;
     for (std::size_t i = 0; i < n; ++i) {

@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "storage/block_grid.h"
 
+#include "iwlomap/map_memory.h"
+
 #include <sys/mman.h>
 
 #include <algorithm>
@@ -19,19 +21,20 @@ constexpr std::size_t kLargestSlab = 2 * 1024 * 1024;
 
 // Slabs come from mmap, not malloc: glibc raises its mmap threshold after large frees and then
 // serves big blocks from a reused heap, which made every map after the first one in a process
-// markedly slower to fill. Transparent huge pages were tried (madvise): they halved the cost of
-// filling an empty map with a surface batch, but with the kernel's default defrag policy a large
-// map then stalled in page compaction at random, doubling some scans; predictable times won.
+// markedly slower to fill. No transparent huge pages: with the kernel's default defrag policy a
+// large map stalled in page compaction at random.
 //
-// Slabs of destroyed maps are kept for the next map of the process, up to kCachedBytes in all:
-// on this project's machines the kernel's first touch of a page (fault, zeroing, accounting)
-// costs about 3 us, which made filling an empty map with a scan's points mostly page faults.
-// Programs that build a map per frame or per region (the PCL filter does) pay it once. Users of
-// a slab never rely on its contents.
+// Slabs that arenas give back are cached, up to kCachedBytes, while any arena is alive: the
+// kernel's first touch of a fresh page (fault, zeroing) costs more than filling it with voxels,
+// so a map built after another one, or a Disk tile loaded after an eviction, takes them instead.
+// When the last arena goes, the cache keeps only what set_retained_map_memory() asks for. Users
+// of a slab never rely on its contents.
 constexpr std::size_t kCachedBytes = 64 * 1024 * 1024;
 
 class SlabCache {
  public:
+  SlabCache() { slabs_.reserve(kCachedBytes / kFirstSlab); }
+
   void* take(std::size_t size) {
     std::lock_guard<std::mutex> lock(mutex_);
     for (std::size_t i = 0; i < slabs_.size(); ++i) {
@@ -51,13 +54,44 @@ class SlabCache {
     bytes_ += size;
     return true;
   }
-
-  SlabCache() { slabs_.reserve(kCachedBytes / kFirstSlab); }
+  void attach() noexcept {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++arenas_;
+  }
+  void detach() noexcept {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (--arenas_ == 0) trim(retained_);
+  }
+  void set_retained(std::size_t bytes) noexcept {
+    std::lock_guard<std::mutex> lock(mutex_);
+    retained_ = std::min(bytes, kCachedBytes);
+    if (arenas_ == 0) trim(retained_);
+  }
+  std::size_t retained() noexcept {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return retained_;
+  }
+  std::size_t bytes() noexcept {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return bytes_;
+  }
 
  private:
+  // Unmaps cached slabs, largest first, until at most \p limit bytes are left. Holds the lock.
+  void trim(std::size_t limit) noexcept {
+    std::sort(slabs_.begin(), slabs_.end(), [](const auto& a, const auto& b) { return a.second < b.second; });
+    while (bytes_ > limit) {
+      munmap(slabs_.back().first, slabs_.back().second);
+      bytes_ -= slabs_.back().second;
+      slabs_.pop_back();
+    }
+  }
+
   std::mutex mutex_;
   std::vector<std::pair<void*, std::size_t>> slabs_;
   std::size_t bytes_ = 0;
+  std::size_t arenas_ = 0;
+  std::size_t retained_ = 0;
 };
 
 SlabCache& slab_cache() {
@@ -77,6 +111,13 @@ void unmap_slab(void* p, std::size_t size) noexcept {
 }
 
 }  // namespace
+
+SlabArena::SlabArena() { slab_cache().attach(); }
+
+SlabArena::~SlabArena() {
+  release();
+  slab_cache().detach();
+}
 
 void* SlabArena::allocate_in_new_slab(std::size_t size) {
   const std::size_t slab = slabs_.empty() ? kFirstSlab : std::min(kLargestSlab, slabs_.back().size * 2);
@@ -188,3 +229,11 @@ void BlockGrid::clear() {
 }
 
 }  // namespace iwlomap::detail
+
+namespace iwlomap {
+
+void set_retained_map_memory(std::size_t bytes) { detail::slab_cache().set_retained(bytes); }
+std::size_t get_retained_map_memory() { return detail::slab_cache().retained(); }
+std::size_t get_cached_map_memory() { return detail::slab_cache().bytes(); }
+
+}  // namespace iwlomap

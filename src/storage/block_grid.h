@@ -1,29 +1,22 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #pragma once
 
-// The sparse block grid of the RAM backend (and of the Disk backend's tiles and the OctoMap
-// backend's working grid). Voxels live in 8^3 blocks found through a FlatKeyMap keyed by block
-// coordinate; inside a block they are stored in cells of 2 x 2 x 1 voxels (32 bytes), allocated
-// on first touch. A block keeps a 128-bit mask of its allocated cells, one array holding them in
-// the order they were allocated and a table of their positions in it, so finding a voxel is one
-// byte of the block header away, and a new cell goes to the end of the array without moving the
-// others (keeping the array in cell order and finding cells by popcount took 1.23x the time to
-// fill an empty map with a scan's points and 1.12x to update them again).
+// The sparse block grid behind every backend's voxels (the RAM map, the Disk backend's resident
+// tiles, the OctoMap backend's exact state). Voxels live in 8^3 blocks found through a FlatKeyMap
+// keyed by block coordinate; inside a block they are stored in cells of 2 x 2 x 1 voxels (32
+// bytes), allocated on first touch. A block keeps a 128-bit mask of its allocated cells, one
+// array holding them in allocation order and a table of their positions in it: finding a voxel is
+// one byte of the block header away, and a new cell goes to the end of the array without moving
+// the others.
 //
 // Why cells: a surface (the endpoints of a scan, a sonar footprint) touches about ten voxels of
-// each 8^3 block it crosses; dense blocks made such maps cost 4 KiB a block and a page fault per
-// block, 3x OctoMap's memory, and filling an empty map was mostly the kernel handing out pages.
-// Why 2 x 2 x 1: the endpoint voxels of the synthetic 65k-point scan fill 35,865 cells of 2^3
-// voxels (2.19 MiB, 1.47 voxels a cell) but 37,697 of 2 x 2 x 1 (1.15 MiB), and those of a real
-// Ouster frame 44,701 against 53,283 (2.73 against 1.63 MiB); no 4-voxel shape does better on
-// either (the ground and most surfaces lie closer to horizontal than to vertical). The batch into
-// an empty map took 3.2 instead of 4.7 MiB with its headers and index, and 5-7% less time after
-// other work had evicted the caches (about the same with the caches warm). A block filled by free
-// space still costs 8 bytes a voxel, plus a 192-byte header (4.7% more).
+// each 8^3 block it crosses, so dense blocks would cost 4 KiB a block for a few voxels. Why
+// 2 x 2 x 1: the ground and most surfaces lie closer to horizontal than to vertical, and this shape
+// fills fewest cells on the synthetic and the Ouster scans of any 4-voxel shape (figures in
+// docs/benchmarks.md). A block filled by free space costs 8 bytes a voxel plus its 192-byte header.
 //
-// A voxel costs 8 bytes: float log-odds, uint16 count and 2 spare bytes. Log-odds and count share
-// a cache line, so an update costs one cache miss, not two (measured: the separate arrays of a
-// 6-byte layout made batch updates ~30% slower). A count of 0 means "unknown"; every observed
+// A voxel is 8 bytes: float log-odds, uint16 count and 2 spare bytes, log-odds and count in one
+// cache line so that an update costs one cache miss. A count of 0 means "unknown"; every observed
 // voxel has count >= 1.
 
 #include "storage/flat_key_map.h"
@@ -202,13 +195,14 @@ static_assert(std::is_trivially_destructible_v<VoxelBlock> && std::is_trivially_
 
 // Block headers and cells are carved out of slabs rather than allocated one by one: a map of
 // millions of voxels allocates thousands of blocks per scan, and one heap allocation each cost
-// more than updating them. Slabs grow from 64 KiB to 2 MiB and come from mmap (see block_grid.cpp).
+// more than updating them. Slabs grow from 64 KiB to 2 MiB, come from mmap and go back to a
+// process-wide cache for reuse (see block_grid.cpp and iwlomap/map_memory.h).
 class SlabArena {
  public:
-  SlabArena() = default;
+  SlabArena();
   SlabArena(const SlabArena&) = delete;
   SlabArena& operator=(const SlabArena&) = delete;
-  ~SlabArena() { release(); }
+  ~SlabArena();
 
   /// \p size bytes (at most 4 KiB) aligned to \p align (a power of two, at most 64); zero-filled
   /// when fresh from the kernel, but callers must not rely on it.
@@ -289,8 +283,7 @@ class BlockGrid {
     return get_or_create_missed(block_key, slot);
   }
   /// get_or_create() once block_key was not found in the cache of recent blocks. Out of line, so
-  /// that the loops around the look-up keep their values in registers (inlined, the index's insert
-  /// made the RAM batch path spill them: 3-4% of its time).
+  /// that the batch loops around the look-up keep their values in registers.
   VoxelBlock& get_or_create_missed(const VoxelKey& block_key, std::size_t slot);
 
   /// Where block \p k goes in the cache of recent blocks: the top bits of a multiplicative hash
@@ -349,14 +342,12 @@ class BlockGrid {
  private:
   void add_cells(VoxelBlock& b, const CellMask& added);
 
-  // A direct-mapped cache of recently used blocks in front of the index: a scan's points run
-  // along rings, and a ring comes back to the blocks of the previous ring about a thousand points
-  // later, so most block changes of a batch hit here instead of walking the index (hash, slot,
-  // block pointer: three dependent cache misses on a large map). Slots come from a hash of the
-  // block coordinate, not from its low bits: with x, y and z taken 4, 4 and 3 bits wide, the
-  // synthetic scan's batch missed 7,888 times into an empty map and 7,794 times again (blocks
-  // 16 apart on the ground collided); hashed, 4,654 and 4,140 (3,992 blocks). Only the writing
-  // path uses it; find() stays free of side effects for concurrent readers.
+  // A direct-mapped cache of recently used blocks in front of the index: a scan's points run along
+  // rings, and a ring comes back to the blocks of the previous ring about a thousand points later,
+  // so most block changes of a batch hit here instead of walking the index (hash, slot, block
+  // pointer: three dependent cache misses on a large map). Slots come from a hash of the block
+  // coordinate, not from its low bits, which made blocks 16 apart on the ground collide. Only the
+  // writing path uses it; find() stays free of side effects for concurrent readers.
   static constexpr int kRecentBits = 11;
   std::unique_ptr<std::array<VoxelBlock*, std::size_t{1} << kRecentBits>> recent_ =
       std::make_unique<std::array<VoxelBlock*, std::size_t{1} << kRecentBits>>();
@@ -385,26 +376,6 @@ class BlockAccessor {
  private:
   BlockGrid* grid_;
   VoxelBlock* last_ = nullptr;
-};
-
-/// Reading accessor with a last-block cache that also caches a miss as a miss (never as a block).
-class ConstBlockAccessor {
- public:
-  explicit ConstBlockAccessor(const BlockGrid& grid) : grid_(&grid) {}
-  [[nodiscard]] const VoxelBlock* block(const VoxelKey& block_key) {
-    if (!valid_ || last_key_ != block_key) {
-      last_ = grid_->find(block_key);
-      last_key_ = block_key;
-      valid_ = true;
-    }
-    return last_;
-  }
-
- private:
-  const BlockGrid* grid_;
-  const VoxelBlock* last_ = nullptr;
-  VoxelKey last_key_{};
-  bool valid_ = false;
 };
 
 }  // namespace iwlomap::detail

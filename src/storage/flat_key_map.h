@@ -72,12 +72,10 @@ class FlatKeyMap {
     std::uint32_t value = kEmpty;
   };
 
-  // The table is kept at most a quarter full (insert() grows it beyond), for short probe runs:
-  // against half full, a scan's batch into a new RAM map took 4% less time and the same batch
-  // again 4.5% less, for 64-128 bytes of index a block instead of 32-64 (the synthetic scan's map
-  // with rays: 58.6 instead of 56.6 MiB). Small tables grow fourfold (fewer rehashes while a map
-  // fills); from kFourfoldUpTo slots (1 MiB) on, twofold, which keeps a large map's index at the
-  // quarter-full bound (fourfold up to 16 MiB made the Ouster frame's map 5 MiB larger still).
+  // The table is kept at most a quarter full (insert() grows it beyond): short probe runs are worth
+  // 64-128 bytes of index a block instead of 32-64 (docs/benchmarks.md). Small tables grow
+  // fourfold (fewer rehashes while a map fills); from kFourfoldUpTo slots (1 MiB) on, twofold,
+  // which keeps a large map's index at the quarter-full bound.
   static constexpr std::size_t kFourfoldUpTo = std::size_t{1} << 16;
   void grow() {
     std::vector<Slot> old(slots_.size() * (slots_.size() < kFourfoldUpTo ? 4 : 2), Slot{});

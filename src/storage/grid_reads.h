@@ -4,12 +4,14 @@
 // Reading a BlockGrid as the backend interface reports it, shared by the backends that keep their
 // exact IWLO state in one (RAM, OctoMap), so that their answers cannot drift apart.
 
+#include "model/checks.h"
 #include "storage/block_grid.h"
 #include "iwlomap/iwlo.h"
 #include "iwlomap/mapper_backend.h"
 
 #include <Eigen/Core>
 
+#include <functional>
 #include <optional>
 #include <vector>
 
@@ -68,6 +70,22 @@ template <class ForEachKnown, class Position>
   const Voxel* v = b->find(index_in_block(key));
   if (v == nullptr || v->count == 0) return std::nullopt;
   return state_of(*v);
+}
+
+/// get_occupied_voxels() of a backend whose map is one grid.
+[[nodiscard]] inline Eigen::MatrixXd occupied_matrix(const BlockGrid& grid, double resolution, double min_probability) {
+  return rows_to_matrix(occupied_rows(grid, resolution, resolve_min_probability(min_probability)));
+}
+
+/// query() of a backend whose map is one grid.
+[[nodiscard]] inline std::optional<VoxelState> query_point(const BlockGrid& grid, double resolution,
+                                                           const Eigen::Vector3d& point) {
+  return query_voxel(grid, world_to_key_checked(point, resolution));
+}
+
+/// for_each_voxel() of a backend whose map is one grid.
+inline void for_each_state(const BlockGrid& grid, const std::function<void(const VoxelKey&, const VoxelState&)>& visit) {
+  for_each_known(grid, [&visit](const VoxelKey& k, const Voxel& v) { visit(k, state_of(v)); });
 }
 
 }  // namespace iwlomap::detail

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "iwlomap/viewer/snapshot_renderer.h"
 
+#include <Eigen/Geometry>
 #include <cmath>
 #include <cstdio>
 #include <stdexcept>

@@ -4,6 +4,7 @@
 #include "vtk_errors.h"
 #include "x_display.h"
 
+#include <Eigen/Geometry>
 #include <vtkActor.h>
 #include <vtkCamera.h>
 #include <vtkCellArray.h>

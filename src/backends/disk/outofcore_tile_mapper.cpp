@@ -4,6 +4,7 @@
 // together; updates run the core's batch kernel on resident tiles.
 #include "iwlomap/outofcore_tile_mapper.h"
 
+#include "backends/pimpl.h"
 #include "backends/disk/file_io.h"
 #include "backends/disk/map_directory.h"
 #include "backends/disk/tile_cache.h"
@@ -394,14 +395,8 @@ OutofcoreTileMapper::~OutofcoreTileMapper() = default;
 OutofcoreTileMapper::OutofcoreTileMapper(OutofcoreTileMapper&&) noexcept = default;
 OutofcoreTileMapper& OutofcoreTileMapper::operator=(OutofcoreTileMapper&&) noexcept = default;
 
-OutofcoreTileMapper::Impl& OutofcoreTileMapper::impl() {
-  if (!impl_) throw std::logic_error("iwlomap: OutofcoreTileMapper used after it was moved from");
-  return *impl_;
-}
-const OutofcoreTileMapper::Impl& OutofcoreTileMapper::impl() const {
-  if (!impl_) throw std::logic_error("iwlomap: OutofcoreTileMapper used after it was moved from");
-  return *impl_;
-}
+OutofcoreTileMapper::Impl& OutofcoreTileMapper::impl() { return detail::checked_impl(impl_, "OutofcoreTileMapper"); }
+const OutofcoreTileMapper::Impl& OutofcoreTileMapper::impl() const { return detail::checked_impl(impl_, "OutofcoreTileMapper"); }
 
 void OutofcoreTileMapper::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                                             const std::vector<bool>& is_occupied) {

@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "iwlomap/probability_updater.h"
 
+#include "backends/pimpl.h"
 #include "integrate/absolute_log_odds.h"
 #include "integrate/batch_apply.h"
 #include "integrate/batch_input.h"
@@ -8,6 +9,7 @@
 #include "storage/block_grid.h"
 #include "storage/grid_reads.h"
 #include "integrate/hit_accumulator.h"
+#include "integrate/scan_apply.h"
 #include "integrate/scan_scratch.h"
 
 #include <algorithm>
@@ -22,15 +24,6 @@ namespace iwlomap {
 
 struct ProbabilityUpdater::Impl {
   explicit Impl(double res) : resolution(res) {}
-
-  void apply(detail::BlockAccessor& acc, const VoxelKey& key, double intensity, bool occupied_flag, double weight) {
-    detail::VoxelBlock* b = nullptr;
-    detail::Voxel& v = acc.voxel(key, b);
-    apply_voxel(*b, v, intensity, occupied_flag, weight);
-  }
-  void apply_voxel(detail::VoxelBlock& b, detail::Voxel& v, double intensity, bool occupied_flag, double weight) {
-    if (detail::observe_voxel(b, v, intensity, occupied_flag, weight, updater)) ++known;
-  }
 
   // The batch is validated first (nothing changes when it throws for its input), then applied by
   // the shared kernel with the grid's own block look-up.
@@ -67,14 +60,8 @@ ProbabilityUpdater::~ProbabilityUpdater() = default;
 ProbabilityUpdater::ProbabilityUpdater(ProbabilityUpdater&&) noexcept = default;
 ProbabilityUpdater& ProbabilityUpdater::operator=(ProbabilityUpdater&&) noexcept = default;
 
-ProbabilityUpdater::Impl& ProbabilityUpdater::impl() {
-  if (!impl_) throw std::logic_error("iwlomap: ProbabilityUpdater used after it was moved from");
-  return *impl_;
-}
-const ProbabilityUpdater::Impl& ProbabilityUpdater::impl() const {
-  if (!impl_) throw std::logic_error("iwlomap: ProbabilityUpdater used after it was moved from");
-  return *impl_;
-}
+ProbabilityUpdater::Impl& ProbabilityUpdater::impl() { return detail::checked_impl(impl_, "ProbabilityUpdater"); }
+const ProbabilityUpdater::Impl& ProbabilityUpdater::impl() const { return detail::checked_impl(impl_, "ProbabilityUpdater"); }
 
 void ProbabilityUpdater::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                                            const std::vector<bool>& is_occupied) {
@@ -96,36 +83,26 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
   detail::check_scan_input(origin, points, intensities, max_range, m.resolution);
   const int threads = get_num_threads();
   const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, threads);
-  detail::BlockAccessor acc(m.grid);
   const std::size_t chunks = m.scratch.num_chunks();
   const auto t = static_cast<std::size_t>(std::min<std::size_t>(static_cast<std::size_t>(threads), chunks / 4 + 1));
-  // Blocks are allocated first, on one thread and in scratch order whatever the thread count, so
-  // that the map's iteration order does not depend on it either.
-  m.scratch.for_each_block(
-      [&](const VoxelKey& block_key, const detail::CellMask& cells) { m.grid.ensure_cells(acc.block(block_key), cells); });
+  detail::allocate_scan(m.scratch, m.grid);
+  const auto observe = [&m](std::size_t& known) {
+    return [&m, &known](detail::VoxelBlock& b, int index, const VoxelKey&, double intensity, bool occupied) {
+      if (detail::observe_voxel(b, b.existing(index), intensity, occupied, 1.0, m.updater)) ++known;
+    };
+  };
   if (t <= 1) {
-    m.scratch.for_each_free(0, chunks, [&](const VoxelKey& block_key, int index) {
-      detail::VoxelBlock& b = acc.block(block_key);
-      m.apply_voxel(b, b.existing(index), 0.0, false, 1.0);
-    });
+    detail::apply_scan_free(m.scratch, m.grid, 0, chunks, observe(m.known));
   } else {
-    // Each thread updates the free voxels of its own range of scratch chunks. Chunks are disjoint,
-    // so are their blocks: no two threads touch one voxel, and the per-voxel results equal the
-    // single-thread ones.
+    // Each thread updates the free voxels of its own ranges of scratch chunks. Chunks are
+    // disjoint, so are their blocks: no two threads touch one voxel, and the per-voxel results
+    // equal the single-thread ones.
     std::vector<std::size_t> newly_known(t, 0);
     std::atomic<std::size_t> next{0};  // chunks near the sensor hold far more voxels: share them out
-    const auto work = [&m, &newly_known, &next, chunks](std::size_t k) {
+    const auto work = [&](std::size_t k) {
       constexpr std::size_t kGrain = 4;
-      detail::VoxelBlock* last = nullptr;
-      std::size_t known = 0;
-      for (std::size_t c = next.fetch_add(kGrain); c < chunks; c = next.fetch_add(kGrain)) {
-        m.scratch.for_each_free(c, std::min(c + kGrain, chunks), [&](const VoxelKey& block_key, int index) {
-          if (last == nullptr || last->key != block_key) last = m.grid.find(block_key);
-          if (detail::observe_voxel(*last, last->existing(index), 0.0, false, 1.0, m.updater))
-            ++known;
-        });
-      }
-      newly_known[k] = known;
+      for (std::size_t c = next.fetch_add(kGrain); c < chunks; c = next.fetch_add(kGrain))
+        detail::apply_scan_free(m.scratch, m.grid, c, std::min(c + kGrain, chunks), observe(newly_known[k]));
     };
     std::vector<std::thread> workers;
     for (std::size_t k = 1; k < t; ++k) workers.emplace_back(work, k);
@@ -133,7 +110,7 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
     for (auto& w : workers) w.join();
     for (const std::size_t n : newly_known) m.known += n;
   }
-  m.scratch.for_each_hit([&](const VoxelKey& key, double intensity) { m.apply(acc, key, intensity, true, 1.0); });
+  detail::apply_scan_hits(m.scratch, m.grid, observe(m.known));
   m.skipped += skip;
   if (m.hits) m.hits->add_scan(origin, points, intensities, max_range, m.updater.params().intensity_threshold);
 }
@@ -155,20 +132,15 @@ void ProbabilityUpdater::set_log_odds(const Eigen::MatrixXd& points, const Eigen
 }
 
 Eigen::MatrixXd ProbabilityUpdater::get_occupied_voxels(double min_probability) {
-  const double threshold = detail::resolve_min_probability(min_probability);
-  const Impl& m = impl();
-  const std::vector<double> rows = detail::occupied_rows(m.grid, m.resolution, threshold);
-  return detail::rows_to_matrix(rows);
+  return detail::occupied_matrix(impl().grid, impl().resolution, min_probability);
 }
 
 std::optional<VoxelState> ProbabilityUpdater::query(const Eigen::Vector3d& point) const {
-  const Impl& m = impl();
-  const VoxelKey key = world_to_key_checked(point, m.resolution);
-  return detail::query_voxel(m.grid, key);
+  return detail::query_point(impl().grid, impl().resolution, point);
 }
 
 void ProbabilityUpdater::for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const {
-  detail::for_each_known(impl().grid, [&visit](const VoxelKey& k, const detail::Voxel& v) { visit(k, detail::state_of(v)); });
+  detail::for_each_state(impl().grid, visit);
 }
 
 void ProbabilityUpdater::set_hit_accumulation(bool enabled) {

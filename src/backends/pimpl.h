@@ -1,0 +1,20 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+// The backends keep their state behind a pointer to an implementation, so that moving a backend
+// is cheap and its header needs no internal type. A moved-from backend has none.
+
+#include <memory>
+#include <stdexcept>
+#include <string>
+
+namespace iwlomap::detail {
+
+/// *impl, or std::logic_error naming \p type when \p impl is empty (the backend was moved from).
+template <class Impl>
+Impl& checked_impl(const std::unique_ptr<Impl>& impl, const char* type) {
+  if (!impl) throw std::logic_error(std::string("iwlomap: ") + type + " used after it was moved from");
+  return *impl;
+}
+
+}  // namespace iwlomap::detail
