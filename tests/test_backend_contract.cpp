@@ -8,6 +8,7 @@
 // factory is an object, created per test, so one that needs a directory (Disk) can own it.
 
 #include "backend_test_support.h"
+#include "reference_api_double.h"
 #include "iwlomap/mapper_backend.h"
 #include "iwlomap/outofcore_tile_mapper.h"
 #include "iwlomap/probability_updater.h"
@@ -409,6 +410,63 @@ TYPED_TEST(BackendContract, PutsPointsInVoxelOfWorldToKeyWhenOnOrNearVoxelFaces)
   }
 }
 
+// Hit statistics: every backend gathers them as the RAM backend does, so mean positions, hits
+// and visits agree bit for bit (the Disk backend's through evictions and tile files).
+TYPED_TEST(BackendContract, MatchesRamWhenHitStatisticsAccumulate) {
+  auto map = this->make(0.2);
+  auto ref = this->make_reference(0.2);
+  map->set_hit_accumulation(true);
+  ref->set_hit_accumulation(true);
+  std::mt19937 rng(61u);
+  for (int step = 0; step < 4; ++step) {
+    const Batch b = random_batch(rng, 3000, 14.0);
+    for (IMapperBackend* m : {map.get(), ref.get()}) {
+      m->batch_update_iwlo(b.points, b.intensities, b.flags);
+      m->insert_scan(Eigen::Vector3d(0.3 * step, -0.2, 0.1), b.points, b.intensities, 10.0);
+    }
+  }
+  const Eigen::MatrixXd got = map->get_occupied_mean_positions(0.5), want = ref->get_occupied_mean_positions(0.5);
+  EXPECT_GT(want.rows(), 100);
+  EXPECT_EQ(sorted_rows(got), sorted_rows(want));
+  std::size_t compared = 0;
+  ref->for_each_voxel([&](const VoxelKey& k, const VoxelState&) {
+    if (++compared > 3000) return;
+    const Eigen::Vector3d c = key_to_center(k, 0.2);
+    const auto g = map->hit_statistics(c), w = ref->hit_statistics(c);
+    ASSERT_EQ(g.has_value(), w.has_value());
+    if (!w) return;
+    EXPECT_EQ(g->hits, w->hits);
+    EXPECT_EQ(g->visits, w->visits);
+    EXPECT_EQ(g->mean_hit_position, w->mean_hit_position);
+  });
+  EXPECT_GT(compared, 1000u);
+}
+
+// clone() gives an independent map; a backend that cannot clone says so beforehand and throws.
+TYPED_TEST(BackendContract, ClonesIndependentlyWhenSupported) {
+  auto map = this->make(0.25);
+  std::mt19937 rng(62u);
+  const Batch a = random_batch(rng, 2000, 8.0), b = random_batch(rng, 2000, 8.0);
+  map->set_hit_accumulation(true);
+  map->batch_update_iwlo(a.points, a.intensities, a.flags);
+  if (!map->supports(BackendFeature::kClone)) {
+    EXPECT_THROW((void)map->clone(), std::logic_error);
+    return;
+  }
+  const Snapshot before = snapshot(*map);
+  const std::unique_ptr<IMapperBackend> copy = map->clone();
+  EXPECT_EQ(copy->get_backend_type(), map->get_backend_type());
+  EXPECT_EQ(snapshot(*copy), before);
+  EXPECT_TRUE(copy->get_hit_accumulation());
+  EXPECT_EQ(sorted_rows(copy->get_occupied_mean_positions(0.5)), sorted_rows(map->get_occupied_mean_positions(0.5)));
+  map->batch_update_iwlo(b.points, b.intensities, b.flags);  // the original changes: the copy does not
+  EXPECT_EQ(snapshot(*copy), before);
+  const Snapshot changed = snapshot(*map);
+  copy->clear();  // the copy changes: the original does not
+  EXPECT_EQ(snapshot(*map), changed);
+  EXPECT_EQ(copy->get_num_nodes(), 0u);
+}
+
 TYPED_TEST(BackendContract, DoesNothingWhenBatchEmpty) {
   auto map = this->make(0.25);
   map->batch_update_iwlo(Eigen::MatrixXd(0, 3), Eigen::VectorXd(0), {});
@@ -501,6 +559,76 @@ TYPED_TEST(BackendContract, ThrowsLikeRamAndChangesNothingWhenInputInvalid) {
     EXPECT_EQ(map->get_params().occupied_threshold, params_before.occupied_threshold);
   }
   expect_same_map(*map, *ref);
+}
+
+// ---- a backend of the reference API alone ----
+
+using test_support::ReferenceApiDouble;
+
+// A backend implementing only the reference API's required methods compiles, is created by
+// make_backend() once registered, and works through IMapperBackend's defaults: a scan integrated
+// by the default insert_scan() gives the RAM backend's map; what cannot be derived says so.
+TEST(ReferenceApiBackend, WorksThroughTheDefaultsWhenOnlyRequiredMethodsExist) {
+  register_backend("ReferenceDouble", [](double resolution, const BackendOptions&) {
+    return std::unique_ptr<IMapperBackend>(std::make_unique<ReferenceApiDouble>(resolution));
+  });
+  const std::unique_ptr<IMapperBackend> map = make_backend("referencedouble", 0.1);
+  ASSERT_EQ(map->get_backend_type(), "ReferenceDouble");
+  for (const BackendFeature f : {BackendFeature::kWeights, BackendFeature::kScan, BackendFeature::kQuery,
+                                 BackendFeature::kParams, BackendFeature::kSetLogOdds, BackendFeature::kHitStatistics,
+                                 BackendFeature::kClone})
+    EXPECT_FALSE(map->supports(f));
+  ProbabilityUpdater ram(0.1);
+  EXPECT_TRUE(ram.supports(BackendFeature::kClone));
+  IwloParams p;
+  p.intensity_threshold = 20.0;
+  p.decay_rate = 0.2;
+  map->set_params(p);  // the default: the five grouped setters
+  ram.set_params(p);
+  EXPECT_EQ(map->get_params().intensity_threshold, 20.0);
+  EXPECT_EQ(map->get_params().decay_rate, 0.2);
+  SyntheticScanOptions o;
+  o.rings = 8;
+  o.columns = 256;
+  const SyntheticScan scan = make_synthetic_scan(o);
+  Eigen::MatrixXd points = scan.points;
+  points(3, 1) = kNaN;
+  for (int round = 0; round < 2; ++round) {
+    map->insert_scan(scan.origin, points, scan.intensities, 18.0);
+    ram.insert_scan(scan.origin, points, scan.intensities, 18.0);
+  }
+  const auto& voxels = dynamic_cast<ReferenceApiDouble&>(*map).voxels();
+  EXPECT_EQ(voxels.size(), ram.get_num_nodes());
+  std::size_t mismatches = 0;
+  ram.for_each_voxel([&](const VoxelKey& k, const VoxelState& v) {
+    const auto it = voxels.find(k);
+    if (it == voxels.end() || it->second.first != static_cast<float>(v.log_odds) || it->second.second != v.count)
+      ++mismatches;
+  });
+  EXPECT_EQ(mismatches, 0u);
+  EXPECT_EQ(map->get_num_skipped_points(), 2u);
+  EXPECT_EQ(sorted_rows(map->get_occupied_voxels(0.5)), sorted_rows(ram.get_occupied_voxels(0.5)));
+  // Weights of 1 reach the unweighted batch; other weights are not supported.
+  Eigen::MatrixXd one(1, 3);
+  one << 1.05, 2.05, 0.05;
+  map->batch_update_iwlo(one, Eigen::VectorXd::Constant(1, 200.0), {true}, Eigen::VectorXd::Constant(1, 1.0));
+  EXPECT_THROW(map->batch_update_iwlo(one, Eigen::VectorXd::Constant(1, 200.0), {true}, Eigen::VectorXd::Constant(1, 0.5)),
+               std::logic_error);
+  EXPECT_THROW(map->batch_update_iwlo(one, Eigen::VectorXd::Constant(1, 200.0), {true}, Eigen::VectorXd::Constant(1, -1.0)),
+               std::invalid_argument);
+  for (const auto& call : std::vector<std::function<void()>>{
+           [&] { (void)map->query({0, 0, 0}); },
+           [&] { map->for_each_voxel([](const VoxelKey&, const VoxelState&) {}); },
+           [&] { (void)map->clone(); },
+           [&] { map->set_hit_accumulation(true); },
+           [&] { map->set_log_odds(one, Eigen::VectorXd::Constant(1, 1.0)); }}) {
+    try {
+      call();
+      ADD_FAILURE() << "expected std::logic_error";
+    } catch (const std::logic_error& e) {
+      EXPECT_NE(std::string(e.what()).find("ReferenceDouble"), std::string::npos) << e.what();
+    }
+  }
 }
 
 }  // namespace

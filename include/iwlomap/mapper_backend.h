@@ -46,6 +46,18 @@ struct VoxelState {
   std::uint32_t count = 0;   ///< observations so far (saturates at iwlo::kMaxCount)
 };
 
+/// What a backend may implement beyond the reference API's required methods (see
+/// IMapperBackend::supports()).
+enum class BackendFeature {
+  kWeights,        ///< batch_update_iwlo() with weights other than 1
+  kScan,           ///< its own insert_scan() (the default casts rays and calls the batch)
+  kQuery,          ///< query() and for_each_voxel()
+  kParams,         ///< get_params() reports parameters however they were set
+  kSetLogOdds,     ///< set_log_odds(), so the backend can receive an import
+  kHitStatistics,  ///< set_hit_accumulation(true) and the hit statistics
+  kClone,          ///< clone()
+};
+
 class IMapperBackend {
  public:
   virtual ~IMapperBackend() = default;
@@ -99,12 +111,23 @@ class IMapperBackend {
   virtual size_t prune() { return 0; }
   [[nodiscard]] virtual bool supports_persistence() const { return false; }
 
-  // ---- additions every backend carries ----
+  // ---- additions every backend of the library carries ----
+  //
+  // A backend written against the reference API alone (only the required methods above) gets a
+  // default for each of these, built on the required methods or, where none can be, an explicit
+  // "not supported" (std::logic_error naming the backend) that supports() reports beforehand.
+
+  /// Whether this backend implements \p feature itself (false: the default of IMapperBackend
+  /// applies, see BackendFeature). The library's backends support every feature but kClone on
+  /// the Disk backend.
+  [[nodiscard]] virtual bool supports(BackendFeature feature) const;
 
   /// As batch_update_iwlo() above, with a per-point weight W >= 0 multiplying each increment.
   /// Throws std::invalid_argument for a negative or non-finite weight (nothing is applied).
+  /// Default: a batch whose weights are all 1 goes to the unweighted batch; any other weight
+  /// throws std::logic_error (BackendFeature::kWeights).
   virtual void batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
-                                 const std::vector<bool>& is_occupied, const Eigen::VectorXd& weights) = 0;
+                                 const std::vector<bool>& is_occupied, const Eigen::VectorXd& weights);
 
   /// Integrates one scan taken from \p origin (metres, map frame): every ray from the origin marks
   /// the voxels it crosses as free, up to but excluding the endpoint voxel, and the endpoint voxel
@@ -113,22 +136,32 @@ class IMapperBackend {
   /// free, and several hits in one voxel count once with the largest intensity. With
   /// \p max_range > 0, a point farther than max_range gives a free ray clipped at max_range and no
   /// hit. Non-finite points are skipped and counted; a non-finite origin throws.
+  /// Default: the rays are cast by the library's ray caster and every voxel's one observation goes
+  /// to the unweighted batch_update_iwlo() at the voxel centre (free voxels with intensity 0 and no
+  /// occupied flag), which gives the same per-voxel result.
   virtual void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
-                           const Eigen::VectorXd& intensities, double max_range = -1.0) = 0;
+                           const Eigen::VectorXd& intensities, double max_range = -1.0);
 
   /// The state of the voxel containing \p point, or std::nullopt when it is unknown (never
   /// observed). Throws std::invalid_argument for a non-finite point.
-  [[nodiscard]] virtual std::optional<VoxelState> query(const Eigen::Vector3d& point) const = 0;
+  /// Default: std::logic_error (BackendFeature::kQuery): the reference API has no per-voxel read.
+  [[nodiscard]] virtual std::optional<VoxelState> query(const Eigen::Vector3d& point) const;
 
   /// Calls \p visit once for every known voxel, in an unspecified but deterministic order.
-  virtual void for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const = 0;
+  /// Default: std::logic_error (BackendFeature::kQuery).
+  virtual void for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const;
 
   /// Points skipped so far because a coordinate or intensity was not finite (reset by clear()).
-  [[nodiscard]] virtual size_t get_num_skipped_points() const = 0;
+  /// Default: the points the default insert_scan() skipped.
+  [[nodiscard]] virtual size_t get_num_skipped_points() const;
 
   /// All IWLO parameters at once (validated; throws std::invalid_argument without changing anything).
-  virtual void set_params(const IwloParams& params) = 0;
-  [[nodiscard]] virtual IwloParams get_params() const = 0;
+  /// Default: validates, then calls the five grouped setters of the reference API.
+  virtual void set_params(const IwloParams& params);
+  /// Default: the parameters last given to set_params() (the reference defaults before): a backend
+  /// that does not override it cannot report values set through its grouped setters
+  /// (BackendFeature::kParams).
+  [[nodiscard]] virtual IwloParams get_params() const;
 
   /// Sets absolute log-odds, which is not an observation: importing a map from a file
   /// (import_octomap() of the OctoMap layer) must restore log-odds exactly, and no sequence of IWLO
@@ -159,6 +192,12 @@ class IMapperBackend {
   /// std::logic_error when accumulation is off (the default: naming the backend).
   [[nodiscard]] virtual Eigen::MatrixXd get_occupied_mean_positions(double min_probability = 0.5);
 
+  /// An independent copy of the map: its voxels, parameters, hit statistics and thread count;
+  /// later changes to either do not show in the other (one map per particle of a particle filter,
+  /// or a "what if" integration). Default: std::logic_error (BackendFeature::kClone). The Disk
+  /// backend's map lives in its directory: OutofcoreTileMapper::copy_to() copies it there.
+  [[nodiscard]] virtual std::unique_ptr<IMapperBackend> clone() const;
+
   /// Threads that insert_scan() may use to cast rays and apply them: 1 (the default, so that
   /// single-thread figures stay comparable), N, or 0 for every hardware thread. The map is
   /// bit-identical whatever the count. Backends that cannot use threads accept the setting and
@@ -169,6 +208,8 @@ class IMapperBackend {
 
  private:
   int num_threads_ = 1;
+  IwloParams default_params_;          // the default get_params()
+  std::size_t default_skipped_ = 0;    // the default get_num_skipped_points()
 };
 
 inline void IMapperBackend::set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) {
@@ -204,6 +245,8 @@ class BackendBase : public IMapperBackend {
   void set_intensity_params(double intensity_threshold, double intensity_max) final;
   void set_adaptive_params(bool enabled, double threshold, double max_ratio) final;
   void set_occupied_threshold(double threshold) final;
+  /// The library's backends implement every feature (the Disk backend overrides this for kClone).
+  [[nodiscard]] bool supports(BackendFeature feature) const override;
 
  protected:
   /// Sets the parameters to \p change applied to a copy of get_params(), once the copy is

@@ -66,13 +66,18 @@ struct DiskMapInfo {
 ///
 /// Reopening: a mapper constructed on an existing map directory continues that map with the same
 /// contents. The constructor reads the metadata and every tile header (not the whole tiles): a
-/// resolution or tile size other than the stored ones throws std::invalid_argument; a damaged
+/// resolution other than the stored one, or a tile size that does not round to the stored number
+/// of voxels, throws std::invalid_argument; a damaged
 /// header or a truncated tile throws StorageError (kCorrupt) naming the file; a file of a newer
 /// format throws StorageError (kNewerVersion). A tile's payload checksum is verified whenever the
 /// tile is read; a mismatch throws StorageError (kCorrupt) naming the file, and the tile is never
 /// replaced by an empty one: every later call that needs it throws the same way until the file is
-/// moved away or clear() is called. IWLO parameters and the skipped-point count belong to the
-/// object, not to the map: they are not stored, set them again after reopening.
+/// moved away or clear() is called. The IWLO parameters and the hit-statistics setting belong
+/// to the map: they are stored in the metadata and restored on reopen. Setting other parameters
+/// (set_params() or a grouped setter) records them in the metadata at once, durably: a map always
+/// states the parameters its latest updates used (changing them mid-survey, for a new sensor
+/// setting, is legitimate, and a map that refused it would have to be rebuilt). The skipped-point
+/// count belongs to the object.
 ///
 /// I/O errors: a failed write (unwritable directory, full disk) throws StorageError (kIo) naming
 /// the file; the previous file of that tile stays intact and the tile keeps its newest state (dirty
@@ -103,9 +108,12 @@ class OutofcoreTileMapper final : public BackendBase {
   /// Opens the map in \p directory (created, with its parents, when missing) or creates a new one.
   /// \param directory   map directory (not empty)
   /// \param resolution  voxel edge in metres (> 0, finite)
-  /// \param tile_size   tile edge in metres; tile_size / resolution must be a whole multiple of 8
-  ///                    voxels (one 8^3 block) between 8 and 8192 voxels, within 1e-9 relative
-  ///                    (the defaults give 200 voxels = 25 blocks)
+  /// \param tile_size   tile edge in metres (> 0, finite), rounded to the nearest whole number of
+  ///                    8^3 blocks: at least one block (8 voxels), at most 1,024 (8,192 voxels).
+  ///                    The effective size is what get_tile_size() returns and the metadata
+  ///                    stores (the defaults give 200 voxels = 25 blocks = 10 m; 0.1 m voxels
+  ///                    give 96 voxels = 9.6 m). Reopening a map accepts any tile_size that
+  ///                    rounds to the stored number of voxels.
   /// \param cache_tiles resident tiles (>= 1)
   /// Throws std::invalid_argument for an invalid argument or one that differs from the stored map,
   /// StorageError for a directory or file that cannot be used (see the class comment).
@@ -126,6 +134,8 @@ class OutofcoreTileMapper final : public BackendBase {
   void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                    const Eigen::VectorXd& intensities, double max_range = -1.0) override;
 
+  /// Validated, recorded in the metadata (StorageError kIo when it cannot be written: nothing
+  /// changes), then used.
   void set_params(const IwloParams& params) override;
   [[nodiscard]] IwloParams get_params() const override;
   void set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) override;
@@ -138,6 +148,21 @@ class OutofcoreTileMapper final : public BackendBase {
   /// Every known voxel, tile by tile in (x, y, z) order of tile coordinates; tiles on disk are
   /// streamed as in get_occupied_voxels().
   void for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const override;
+
+  /// Hit statistics (hit_statistics.h), stored in the tiles and equal to the RAM backend's. The
+  /// setting is part of the map (metadata), kept on reopen; turning accumulation on starts from
+  /// empty statistics (those still in tile files from an earlier time are void).
+  void set_hit_accumulation(bool enabled) override;
+  [[nodiscard]] bool get_hit_accumulation() const override;
+  /// Loads the voxel's tile into the cache when it is on disk, as query() does.
+  [[nodiscard]] std::optional<HitStatistics> hit_statistics(const Eigen::Vector3d& point) const override;
+  /// Covers every tile as get_occupied_voxels() does (rows in the same order).
+  [[nodiscard]] Eigen::MatrixXd get_occupied_mean_positions(double min_probability = 0.5) override;
+
+  /// Not in RAM: throws std::logic_error; copy_to() copies the map to another directory.
+  [[nodiscard]] std::unique_ptr<IMapperBackend> clone() const override;
+  /// Every feature but BackendFeature::kClone.
+  [[nodiscard]] bool supports(BackendFeature feature) const override;
 
   /// num_nodes counts the whole map; memory_mb counts what is resident (tiles, tile index, scratch
   /// buffers); memory_efficiency = known voxels / allocated voxel slots of the resident tiles.
@@ -170,7 +195,8 @@ class OutofcoreTileMapper final : public BackendBase {
 
   /// The map directory.
   [[nodiscard]] std::string get_directory() const;
-  /// Tile edge in metres as stored (tile_voxels * resolution is the exact extent).
+  /// Tile edge in metres: get_tile_voxels() * resolution, the requested size rounded to whole
+  /// blocks.
   [[nodiscard]] double get_tile_size() const;
   /// Tile edge in voxels (a multiple of 8).
   [[nodiscard]] size_t get_tile_voxels() const;
@@ -181,6 +207,11 @@ class OutofcoreTileMapper final : public BackendBase {
   [[nodiscard]] size_t get_num_tiles() const;
   /// Largest number of tiles resident at once since construction (or the last clear()).
   [[nodiscard]] size_t get_peak_resident_tiles() const;
+
+  /// Flushes, then copies the map (metadata and tile files) to \p directory, created when
+  /// missing; a directory that already holds a map is refused (StorageError kIo naming it). The
+  /// copy is an independent map with the same contents: open it with another mapper.
+  void copy_to(const std::string& directory);
 
  protected:
   /// The read and the write of the parameters under the mapper's lock.

@@ -19,9 +19,9 @@ namespace iwlomap {
 /// map_memory.h).
 ///
 /// Not thread-safe: one thread at a time may call a mutating method; const methods may run
-/// concurrently with each other. Non-copyable, movable; a moved-from object throws
-/// std::logic_error from every method that reads or changes the map (get_backend_type(), the
-/// thread count and the optional defaults of IMapperBackend still answer).
+/// concurrently with each other. Non-copyable (clone() makes an explicit deep copy), movable; a
+/// moved-from object throws std::logic_error from every method that reads or changes the map
+/// (get_backend_type(), the thread count and the optional defaults of IMapperBackend still answer).
 class ProbabilityUpdater final : public BackendBase {
  public:
   /// \param resolution voxel edge in metres (> 0, finite); throws std::invalid_argument otherwise.
@@ -55,6 +55,10 @@ class ProbabilityUpdater final : public BackendBase {
   [[nodiscard]] bool get_hit_accumulation() const override;
   [[nodiscard]] std::optional<HitStatistics> hit_statistics(const Eigen::Vector3d& point) const override;
   [[nodiscard]] Eigen::MatrixXd get_occupied_mean_positions(double min_probability = 0.5) override;
+
+  /// A deep copy (a new ProbabilityUpdater): voxels in the same iteration order, parameters,
+  /// skipped-point count, hit statistics and thread count.
+  [[nodiscard]] std::unique_ptr<IMapperBackend> clone() const override;
 
   /// memory_mb counts every byte the map holds: the slabs its block headers and cells are carved
   /// from, block table, hash index and the scratch buffers kept between scans.

@@ -9,6 +9,7 @@
 #include "backends/pimpl.h"
 #include "integrate/absolute_log_odds.h"
 #include "integrate/batch_input.h"
+#include "integrate/hit_accumulator.h"
 #include "integrate/scan_apply.h"
 #include "integrate/scan_scratch.h"
 #include "integrate/updater.h"
@@ -140,6 +141,7 @@ struct OctreeMapper::Impl {
   double resolution;
   detail::Updater updater;
   detail::BlockGrid grid;  // the exact state, as in the RAM backend
+  detail::HitStatisticsOf hits{resolution};
   detail::ScanScratch scratch;
   std::vector<detail::Observation> batch;  // reused between batches
   octomap::OcTree tree;                    // leaves mirror the exact log-odds
@@ -298,6 +300,7 @@ void OctreeMapper::load_from_file(const std::string& path) {
   clear();
   m.resolution = loaded.resolution;
   m.tree.setResolution(loaded.resolution);
+  m.hits.reset(loaded.resolution);
   detail::set_tree_voxels(*loaded.tree, *this);
 }
 
@@ -305,12 +308,16 @@ void OctreeMapper::load_from_file(const std::string& path) {
 
 void OctreeMapper::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                                      const std::vector<bool>& is_occupied) {
-  impl().apply_batch(points, intensities, is_occupied, nullptr);
+  Impl& m = impl();
+  m.apply_batch(points, intensities, is_occupied, nullptr);
+  m.hits.add_batch(points, intensities, is_occupied, m.updater.params().intensity_threshold);
 }
 
 void OctreeMapper::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                                      const std::vector<bool>& is_occupied, const Eigen::VectorXd& weights) {
-  impl().apply_batch(points, intensities, is_occupied, &weights);
+  Impl& m = impl();
+  m.apply_batch(points, intensities, is_occupied, &weights);
+  m.hits.add_batch(points, intensities, is_occupied, m.updater.params().intensity_threshold);
 }
 
 void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
@@ -339,6 +346,7 @@ void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::Matri
   detail::apply_scan_hits(m.scratch, m.grid, observe);
   m.skipped += skip;
   m.tree_changed();
+  m.hits.add_scan(origin, points, intensities, max_range, m.updater.params().intensity_threshold);
 }
 
 void OctreeMapper::set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) {
@@ -373,6 +381,42 @@ void OctreeMapper::for_each_voxel(const std::function<void(const VoxelKey&, cons
   detail::for_each_state(impl().grid, visit);
 }
 
+void OctreeMapper::set_hit_accumulation(bool enabled) { impl().hits.set_enabled(enabled); }
+
+bool OctreeMapper::get_hit_accumulation() const { return impl().hits.enabled(); }
+
+std::optional<HitStatistics> OctreeMapper::hit_statistics(const Eigen::Vector3d& point) const {
+  const Impl& m = impl();
+  return m.hits.get("hit_statistics()").statistics(world_to_key_checked(point, m.resolution));
+}
+
+Eigen::MatrixXd OctreeMapper::get_occupied_mean_positions(double min_probability) {
+  const Impl& m = impl();
+  return detail::occupied_mean_matrix(m.grid, m.hits.get("get_occupied_mean_positions()"), min_probability);
+}
+
+std::unique_ptr<IMapperBackend> OctreeMapper::clone() const {
+  const Impl& m = impl();
+  auto copy = std::make_unique<OctreeMapper>(m.resolution, m.prob_hit, m.prob_miss, m.prob_thres_min, m.prob_thres_max);
+  Impl& c = *copy->impl_;
+  c.updater = m.updater;
+  c.grid = m.grid.clone();
+  if (m.hits.enabled()) {
+    c.hits.set_enabled(true);
+    c.hits.get()->merge(m.hits.get("clone()"));
+  }
+  {
+    std::lock_guard<std::mutex> lock(m.tree_mutex);  // const readers may refresh the tree meanwhile
+    octomap::OcTree tree(m.tree);
+    c.tree.swapContent(tree);
+  }
+  c.known = m.known;
+  c.skipped = m.skipped;
+  c.tree_changed();
+  copy->set_num_threads(get_num_threads());
+  return copy;
+}
+
 MemoryStats OctreeMapper::get_memory_usage() const {
   const Impl& m = impl();
   std::size_t nodes, leaves, tree_bytes;
@@ -389,7 +433,7 @@ MemoryStats OctreeMapper::get_memory_usage() const {
     tree_bytes = m.stat_bytes;
   }
   const std::size_t bytes = sizeof(Impl) + tree_bytes + m.grid.bytes() + m.scratch.bytes() +
-                            m.batch.capacity() * sizeof(detail::Observation);
+                            m.batch.capacity() * sizeof(detail::Observation) + m.hits.bytes();
   const std::size_t slots = m.grid.num_slots();
   return MemoryStats{nodes, leaves, static_cast<double>(bytes) / (1024.0 * 1024.0),
                      slots == 0 ? 0.0 : static_cast<double>(m.known) / static_cast<double>(slots)};
@@ -408,6 +452,7 @@ void OctreeMapper::clear() {
   m.ray.reset();
   m.known = 0;
   m.skipped = 0;
+  m.hits.clear();
   m.tree_changed();
 }
 

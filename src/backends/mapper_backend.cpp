@@ -1,6 +1,10 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "iwlomap/mapper_backend.h"
 
+#include "integrate/batch_input.h"
+#include "integrate/scan_scratch.h"
+#include "model/checks.h"
+
 #include <algorithm>
 #include <stdexcept>
 #include <string>
@@ -8,12 +12,92 @@
 
 namespace iwlomap {
 
+namespace {
+
+[[noreturn]] void not_supported(const IMapperBackend& b, const std::string& what, const char* feature) {
+  throw std::logic_error("iwlomap: the " + b.get_backend_type() + " backend does not implement " + what +
+                         " (supports(BackendFeature::" + feature + ") is false)");
+}
+
+}  // namespace
+
+// ---- the defaults of IMapperBackend, built on the reference API's required methods ----
+
+bool IMapperBackend::supports(BackendFeature) const { return false; }
+
+void IMapperBackend::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                                       const std::vector<bool>& is_occupied, const Eigen::VectorXd& weights) {
+  (void)detail::validate_batch(points, intensities, is_occupied, &weights, get_resolution());
+  if (!(weights.array() == 1.0).all()) not_supported(*this, "per-point weights other than 1", "kWeights");
+  batch_update_iwlo(points, intensities, is_occupied);
+}
+
+void IMapperBackend::insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                                 const Eigen::VectorXd& intensities, double max_range) {
+  const double r = get_resolution();
+  detail::check_scan_input(origin, points, intensities, max_range, r);
+  detail::ScanScratch scratch;
+  const std::size_t skipped = scratch.collect(origin, points, intensities, max_range, r, get_num_threads());
+  // Every voxel's one observation of the scan, at the voxel's centre, in batches of kRows rows.
+  constexpr Eigen::Index kRows = Eigen::Index{1} << 16;
+  Eigen::MatrixXd rows(kRows, 3);
+  Eigen::VectorXd values(kRows);
+  std::vector<bool> flags(static_cast<std::size_t>(kRows));
+  Eigen::Index n = 0;
+  const auto flush = [&] {
+    if (n == kRows) {
+      batch_update_iwlo(rows, values, flags);
+    } else if (n > 0) {
+      batch_update_iwlo(rows.topRows(n), values.head(n),
+                        std::vector<bool>(flags.begin(), flags.begin() + static_cast<std::ptrdiff_t>(n)));
+    }
+    n = 0;
+  };
+  const auto add = [&](const VoxelKey& key, double intensity, bool occupied) {
+    rows.row(n) = key_to_center(key, r).transpose();
+    values[n] = intensity;
+    flags[static_cast<std::size_t>(n)] = occupied;
+    if (++n == kRows) flush();
+  };
+  scratch.for_each_free(0, scratch.num_chunks(),
+                        [&](const VoxelKey& block_key, int index) { add(detail::voxel_of(block_key, index), 0.0, false); });
+  scratch.for_each_hit([&](const VoxelKey& key, double intensity) { add(key, intensity, true); });
+  flush();
+  default_skipped_ += skipped;
+}
+
+std::optional<VoxelState> IMapperBackend::query(const Eigen::Vector3d&) const {
+  not_supported(*this, "query()", "kQuery");
+}
+
+void IMapperBackend::for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>&) const {
+  not_supported(*this, "for_each_voxel()", "kQuery");
+}
+
+size_t IMapperBackend::get_num_skipped_points() const { return default_skipped_; }
+
+void IMapperBackend::set_params(const IwloParams& params) {
+  params.validate();
+  set_iwlo_params(params.sharpness, params.decay_rate, params.min_alpha, params.L_min, params.L_max);
+  set_log_odds_params(params.log_odds_occupied, params.log_odds_free);
+  set_intensity_params(params.intensity_threshold, params.intensity_max);
+  set_adaptive_params(params.adaptive_enabled, params.adaptive_threshold, params.adaptive_max_ratio);
+  set_occupied_threshold(params.occupied_threshold);
+  default_params_ = params;
+}
+
+IwloParams IMapperBackend::get_params() const { return default_params_; }
+
+std::unique_ptr<IMapperBackend> IMapperBackend::clone() const { not_supported(*this, "clone()", "kClone"); }
+
 void IMapperBackend::set_num_threads(int threads) {
   if (threads < 0)
     throw std::invalid_argument("iwlomap: set_num_threads: threads must be >= 0 (0 = all hardware threads), got " +
                                 std::to_string(threads));
   num_threads_ = threads > 0 ? threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
 }
+
+bool BackendBase::supports(BackendFeature) const { return true; }
 
 void BackendBase::modify_params(const std::function<void(IwloParams&)>& change) {
   IwloParams p = get_params();

@@ -1,16 +1,21 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #pragma once
 
-// The RAM backend's optional per-voxel hit statistics (hit_statistics.h), kept beside the block
-// grid rather than in detail::Voxel, so that a map without them pays nothing and the voxel stays
-// within 8 bytes. Cells live in 8^3 blocks keyed like the grid's blocks (allocated on first
-// touch, found through a FlatKeyMap, last block cached). A cell is 32 bytes: the sum of hit
-// offsets from the voxel centre in double (offsets rather than positions keep the sum small, so
-// millions of hits far from the origin still give a mean to well under a micrometre) and two
-// saturating 32-bit counters.
+// Optional per-voxel hit statistics (hit_statistics.h), kept beside a block grid rather than in
+// detail::Voxel, so that a map without them pays nothing and the voxel stays within 8 bytes.
+// Cells live in 8^3 blocks keyed like the grid's blocks (allocated on first touch, found through a
+// FlatKeyMap, last block cached). A cell is 32 bytes: the sum of hit offsets from the voxel centre
+// in double (offsets rather than positions keep the sum small, so millions of hits far from the
+// origin still give a mean to well under a micrometre) and two saturating 32-bit counters.
+//
+// Every backend accumulates a scan the same way, so that their statistics agree bit for bit: the
+// scan's rays go into an accumulator of their own (ray order), which is then merged into the
+// map's (merge()), block by block; a batch adds its rows in call order.
 
+#include "model/checks.h"
 #include "storage/block_grid.h"
 #include "storage/flat_key_map.h"
+#include "storage/grid_reads.h"
 #include "iwlomap/hit_statistics.h"
 #include "iwlomap/ray_caster.h"
 #include "iwlomap/voxel_key.h"
@@ -23,6 +28,9 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <optional>
+#include <stdexcept>
+#include <string>
 #include <vector>
 
 namespace iwlomap::detail {
@@ -36,43 +44,56 @@ static_assert(sizeof(HitCell) == 32, "a hit cell is 32 bytes");
 
 class HitAccumulator {
  public:
+  struct Block {
+    std::array<HitCell, kBlockVoxels> cells{};  // index_in_block() order
+  };
+
   explicit HitAccumulator(double resolution) : resolution_(resolution) {}
+  HitAccumulator(const HitAccumulator& other) : resolution_(other.resolution_), keys_(other.keys_), index_(other.index_) {
+    blocks_.reserve(other.blocks_.size());
+    for (const auto& b : other.blocks_) blocks_.push_back(std::make_unique<Block>(*b));
+  }
+  HitAccumulator& operator=(const HitAccumulator&) = delete;
 
   void add_visit(const VoxelKey& k) {
     HitCell& c = cell(k);
-    c.visits = saturating_increment(c.visits);
+    c.visits = saturating_add(c.visits, 1);
   }
 
   // Once hits saturate, further positions are dropped too, so the mean stays the mean of the
   // hits it counts.
   void add_hit(const VoxelKey& k, const Eigen::Vector3d& point) {
     HitCell& c = cell(k);
-    c.visits = saturating_increment(c.visits);
+    c.visits = saturating_add(c.visits, 1);
     if (c.hits == std::numeric_limits<std::uint32_t>::max()) return;
     ++c.hits;
     const Eigen::Vector3d d = point - key_to_center(k, resolution_);
     for (int a = 0; a < 3; ++a) c.offset_sum[static_cast<std::size_t>(a)] += d[a];
   }
 
-  // The statistics of a batch the map has applied (so it was valid): every row whose point and
-  // intensity are finite (the rows prepare_batch() keeps) is a visit, and a hit when it is an
-  // occupied observation (flag set, intensity above the threshold).
-  void add_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
-                 const std::vector<bool>& is_occupied, double intensity_threshold) {
-    for (Eigen::Index i = 0; i < points.rows(); ++i) {
-      const Eigen::Vector3d p = points.row(i).transpose();
-      if (!p.allFinite() || !std::isfinite(intensities[i])) continue;
-      const VoxelKey k = world_to_key(p, resolution_);
-      if (is_occupied[static_cast<std::size_t>(i)] && intensities[i] > intensity_threshold)
-        add_hit(k, p);
-      else
-        add_visit(k);
-    }
+  /// Row \p i of a batch the map has applied (so it was valid): a visit, and a hit when it is an
+  /// occupied observation (flag set, intensity above the threshold). Non-finite rows count nothing.
+  void add_row(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities, const std::vector<bool>& is_occupied,
+               Eigen::Index i, double intensity_threshold) {
+    const Eigen::Vector3d p = points.row(i).transpose();
+    if (!p.allFinite() || !std::isfinite(intensities[i])) return;
+    const VoxelKey k = world_to_key(p, resolution_);
+    if (is_occupied[static_cast<std::size_t>(i)] && intensities[i] > intensity_threshold)
+      add_hit(k, p);
+    else
+      add_visit(k);
   }
 
-  // The statistics of a scan the map has applied, per ray as GMapping counts beams (see
-  // hit_statistics.h). The rays are cast again because the scan scratch merges them per voxel;
-  // the endpoint arithmetic is ScanScratch::collect_range()'s, so the voxels are the same.
+  /// Every row of a batch, in order.
+  void add_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                 const std::vector<bool>& is_occupied, double intensity_threshold) {
+    for (Eigen::Index i = 0; i < points.rows(); ++i) add_row(points, intensities, is_occupied, i, intensity_threshold);
+  }
+
+  /// The statistics of a scan the map has applied, per ray as GMapping counts beams (see
+  /// hit_statistics.h), into this accumulator (a scan's own, merged into the map's afterwards).
+  /// The rays are cast again because the scan scratch merges them per voxel; the endpoint
+  /// arithmetic is ScanScratch::collect_range()'s, so the voxels are the same.
   void add_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                 double max_range, double intensity_threshold) {
     const bool clip = max_range > 0.0;
@@ -94,19 +115,77 @@ class HitAccumulator {
     }
   }
 
+  /// Calls fn(block_key, const Block&) for every block, in the order they were first touched.
+  template <class Fn>
+  void for_each_block(Fn&& fn) const {
+    for (std::size_t i = 0; i < blocks_.size(); ++i) fn(keys_[i], *blocks_[i]);
+  }
+
+  /// Adds \p from's cells to block \p block_key's: counts saturating (hits that no longer fit are
+  /// dropped with their positions), offset sums added.
+  void merge(const VoxelKey& block_key, const Block& from) {
+    Block& to = block(block_key);
+    for (std::size_t i = 0; i < from.cells.size(); ++i) {
+      const HitCell& f = from.cells[i];
+      if (f.visits == 0) continue;
+      HitCell& t = to.cells[i];
+      t.visits = saturating_add(t.visits, f.visits);
+      if (f.hits == 0 || f.hits > std::numeric_limits<std::uint32_t>::max() - t.hits) {
+        if (f.hits != 0) t.hits = std::numeric_limits<std::uint32_t>::max();
+        continue;
+      }
+      t.hits += f.hits;
+      for (std::size_t a = 0; a < 3; ++a) t.offset_sum[a] += f.offset_sum[a];
+    }
+  }
+  /// merge() of every block of \p from.
+  void merge(const HitAccumulator& from) {
+    from.for_each_block([this](const VoxelKey& b, const Block& cells) { merge(b, cells); });
+  }
+
   [[nodiscard]] const HitCell* find(const VoxelKey& k) const noexcept {
     const std::uint32_t i = index_.find(block_of(k));
     if (i == FlatKeyMap::kEmpty) return nullptr;
     return &blocks_[i]->cells[static_cast<std::size_t>(index_in_block(k))];
   }
 
-  [[nodiscard]] HitStatistics statistics(const VoxelKey& k, const HitCell& c) const {
+  /// The statistics of voxel \p k, or nullopt when it was never visited.
+  [[nodiscard]] std::optional<HitStatistics> statistics(const VoxelKey& k) const {
+    const HitCell* c = find(k);
+    if (c == nullptr || c->visits == 0) return std::nullopt;
     HitStatistics s;
-    s.hits = c.hits;
-    s.visits = c.visits;
-    s.mean_hit_position = mean_position(k, c);
-    s.entropy = cell_entropy(c.hits, c.visits);
+    s.hits = c->hits;
+    s.visits = c->visits;
+    s.mean_hit_position = mean_position(k, *c);
+    s.entropy = cell_entropy(c->hits, c->visits);
     return s;
+  }
+
+  /// The mean hit position of voxel \p k, or its centre when it holds no hit.
+  [[nodiscard]] Eigen::Vector3d mean_position(const VoxelKey& k) const {
+    const HitCell* c = find(k);
+    return c != nullptr ? mean_position(k, *c) : key_to_center(k, resolution_);
+  }
+
+  [[nodiscard]] bool empty() const noexcept { return blocks_.empty(); }
+
+  void clear() {
+    blocks_.clear();
+    blocks_.shrink_to_fit();
+    keys_.clear();
+    keys_.shrink_to_fit();
+    index_.reset();
+    last_ = nullptr;
+  }
+
+  [[nodiscard]] std::size_t bytes() const noexcept {
+    return sizeof(*this) + blocks_.size() * sizeof(Block) + blocks_.capacity() * sizeof(blocks_[0]) +
+           keys_.capacity() * sizeof(VoxelKey) + index_.bytes();
+  }
+
+ private:
+  static std::uint32_t saturating_add(std::uint32_t v, std::uint32_t d) noexcept {
+    return v > std::numeric_limits<std::uint32_t>::max() - d ? std::numeric_limits<std::uint32_t>::max() : v + d;
   }
 
   [[nodiscard]] Eigen::Vector3d mean_position(const VoxelKey& k, const HitCell& c) const {
@@ -116,43 +195,87 @@ class HitAccumulator {
     return centre + Eigen::Vector3d(c.offset_sum[0] / n, c.offset_sum[1] / n, c.offset_sum[2] / n);
   }
 
-  void clear() {
-    blocks_.clear();
-    blocks_.shrink_to_fit();
-    index_.reset();
-    last_ = nullptr;
-  }
-
-  [[nodiscard]] std::size_t bytes() const noexcept {
-    return sizeof(*this) + blocks_.size() * sizeof(Block) + blocks_.capacity() * sizeof(blocks_[0]) + index_.bytes();
-  }
-
- private:
-  struct Block {
-    std::array<HitCell, kBlockVoxels> cells{};
-  };
-
-  static std::uint32_t saturating_increment(std::uint32_t v) noexcept {
-    return v == std::numeric_limits<std::uint32_t>::max() ? v : v + 1;
-  }
-
-  HitCell& cell(const VoxelKey& k) {
-    const VoxelKey b = block_of(k);
+  Block& block(const VoxelKey& b) {
     if (last_ == nullptr || last_key_ != b) {
       const auto next = static_cast<std::uint32_t>(blocks_.size());
       const std::uint32_t i = index_.insert(b, next);
-      if (i == next) blocks_.push_back(std::make_unique<Block>());
+      if (i == next) {
+        blocks_.push_back(std::make_unique<Block>());
+        keys_.push_back(b);
+      }
       last_ = blocks_[i].get();
       last_key_ = b;
     }
-    return last_->cells[static_cast<std::size_t>(index_in_block(k))];
+    return *last_;
   }
+  HitCell& cell(const VoxelKey& k) { return block(block_of(k)).cells[static_cast<std::size_t>(index_in_block(k))]; }
 
   double resolution_;
   std::vector<std::unique_ptr<Block>> blocks_;
+  std::vector<VoxelKey> keys_;  // of blocks_
   FlatKeyMap index_;
   Block* last_ = nullptr;
   VoxelKey last_key_{};
 };
+
+/// The hit statistics of a map held in one HitAccumulator (RAM, OctoMap): on, off, read.
+class HitStatisticsOf {
+ public:
+  explicit HitStatisticsOf(double resolution) : resolution_(resolution) {}
+  HitStatisticsOf(const HitStatisticsOf& o)
+      : resolution_(o.resolution_), hits_(o.hits_ ? std::make_unique<HitAccumulator>(*o.hits_) : nullptr) {}
+  HitStatisticsOf& operator=(const HitStatisticsOf&) = delete;
+
+  /// On: starts from empty statistics unless already on; off: frees them.
+  void set_enabled(bool enabled) {
+    if (!enabled)
+      hits_.reset();
+    else if (!hits_)
+      hits_ = std::make_unique<HitAccumulator>(resolution_);
+  }
+  [[nodiscard]] bool enabled() const noexcept { return hits_ != nullptr; }
+  /// The accumulator, or std::logic_error naming \p caller when accumulation is off.
+  [[nodiscard]] const HitAccumulator& get(const char* caller) const {
+    if (!hits_)
+      throw std::logic_error(std::string("iwlomap: ") + caller +
+                             " needs hit accumulation, which is off (set_hit_accumulation(true))");
+    return *hits_;
+  }
+  [[nodiscard]] HitAccumulator* get() noexcept { return hits_.get(); }
+
+  void add_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities, const std::vector<bool>& is_occupied,
+                 double intensity_threshold) {
+    if (hits_) hits_->add_batch(points, intensities, is_occupied, intensity_threshold);
+  }
+  void add_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                double max_range, double intensity_threshold) {
+    if (!hits_) return;
+    HitAccumulator scan(resolution_);
+    scan.add_scan(origin, points, intensities, max_range, intensity_threshold);
+    hits_->merge(scan);
+  }
+  void clear() {
+    if (hits_) hits_->clear();
+  }
+  /// Empty statistics at another resolution (a map that took a file's resolution).
+  void reset(double resolution) {
+    resolution_ = resolution;
+    if (hits_) hits_ = std::make_unique<HitAccumulator>(resolution_);
+  }
+  [[nodiscard]] std::size_t bytes() const noexcept { return hits_ ? hits_->bytes() : 0; }
+
+ private:
+  double resolution_;
+  std::unique_ptr<HitAccumulator> hits_;
+};
+
+/// get_occupied_mean_positions() of a map held in one grid: get_occupied_voxels()'s rows, in its
+/// order, at the voxels' mean hit positions.
+[[nodiscard]] inline Eigen::MatrixXd occupied_mean_matrix(const BlockGrid& grid, const HitAccumulator& hits,
+                                                          double min_probability) {
+  return rows_to_matrix(occupied_rows([&grid](auto&& fn) { for_each_known(grid, fn); },
+                                      resolve_min_probability(min_probability),
+                                      [&hits](const VoxelKey& key) { return hits.mean_position(key); }));
+}
 
 }  // namespace iwlomap::detail

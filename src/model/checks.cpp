@@ -2,17 +2,22 @@
 #include "model/checks.h"
 
 #include <cmath>
-#include <sstream>
+#include <cstdio>
+#include <cstdlib>
 #include <stdexcept>
 
 namespace iwlomap::detail {
 
-std::string describe(const char* name, double value) {
-  std::ostringstream s;
-  s.precision(17);
-  s << name << " = " << value;
-  return s.str();
+std::string shortest(double value) {
+  char buf[40];
+  for (int precision = 1; precision <= 17; ++precision) {
+    std::snprintf(buf, sizeof buf, "%.*g", precision, value);
+    if (std::strtod(buf, nullptr) == value || std::isnan(value)) break;
+  }
+  return buf;
 }
+
+std::string describe(const char* name, double value) { return std::string(name) + " = " + shortest(value); }
 
 void check_resolution(double resolution) {
   if (!(std::isfinite(resolution) && resolution > 0.0))
@@ -30,13 +35,11 @@ void check_points_shape(const Eigen::MatrixXd& points, Eigen::Index n_values, co
 }
 
 void throw_out_of_range(Eigen::Index i, const Eigen::Vector3d& p, double resolution) {
-  std::ostringstream s;
-  s.precision(17);
-  s << "iwlomap: "
-    << (i == -1 ? std::string("the scan origin") : i < 0 ? std::string("the point") : "point " + std::to_string(i))
-    << " (" << p.x() << ", " << p.y() << ", " << p.z() << ") lies outside the int32 key range at resolution "
-    << resolution;
-  throw std::out_of_range(s.str());
+  throw std::out_of_range(
+      "iwlomap: " +
+      (i == -1 ? std::string("the scan origin") : i < 0 ? std::string("the point") : "point " + std::to_string(i)) +
+      " (" + shortest(p.x()) + ", " + shortest(p.y()) + ", " + shortest(p.z()) +
+      ") lies outside the int32 key range at resolution " + shortest(resolution));
 }
 
 double resolve_min_probability(double min_probability) {

@@ -12,7 +12,11 @@
 
 namespace iwlomap::detail {
 
-/// "name = value" with full precision, for exception messages.
+/// The shortest decimal form of \p value that reads back as the same double ("0.2", not
+/// "0.20000000000000001"), for messages.
+[[nodiscard]] std::string shortest(double value);
+
+/// "name = value" with shortest(value), for exception messages.
 [[nodiscard]] std::string describe(const char* name, double value);
 
 /// Throws std::invalid_argument unless \p resolution is finite and > 0.

@@ -169,6 +169,17 @@ void BlockGrid::add_cells(VoxelBlock& b, const CellMask& added) {
   cells_ += static_cast<std::size_t>(count - old_count);
 }
 
+BlockGrid BlockGrid::clone() const {
+  BlockGrid copy;
+  for (const VoxelBlock* b : blocks_) {
+    VoxelBlock& c = copy.get_or_create(b->key);
+    copy.ensure_cells(c, b->cell_mask);
+    b->for_each_slot([&c](int i, const Voxel& v) { c.existing(i) = v; });
+    c.known = b->known;
+  }
+  return copy;
+}
+
 void BlockGrid::add_dense(const DenseBlock& dense) {
   VoxelBlock& b = get_or_create(dense.key);
   CellMask mask;

@@ -310,6 +310,9 @@ class BlockGrid {
     return b.existing(index);
   }
 
+  /// A deep copy: the same blocks in the same order, each with the same voxels.
+  [[nodiscard]] BlockGrid clone() const;
+
   /// Stores \p dense (its known voxels; the others stay unknown) as the block \p dense.key, which
   /// must not be in the grid yet.
   void add_dense(const DenseBlock& dense);

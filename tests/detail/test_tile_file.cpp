@@ -62,19 +62,72 @@ TEST(TileFile, DecodesEveryVoxelWhenEncoded) {
   VoxelMap ref;
   const detail::BlockGrid grid = random_tile(ref);
   std::vector<std::uint8_t> bytes;
-  EXPECT_EQ(detail::encode_tile(grid, kResolution, kTileVoxels, kTile, bytes), ref.size());
+  EXPECT_EQ(detail::encode_tile(grid, nullptr, 0, kResolution, kTileVoxels, kTile, bytes), ref.size());
   EXPECT_EQ(decode_all(bytes), ref);
   // Encoding is canonical: the same voxels give the same bytes.
   std::vector<std::uint8_t> again;
-  (void)detail::encode_tile(grid, kResolution, kTileVoxels, kTile, again);
+  (void)detail::encode_tile(grid, nullptr, 0, kResolution, kTileVoxels, kTile, again);
   EXPECT_EQ(bytes, again);
+}
+
+// Version 2: the hit statistics come back bit for bit, with their epoch; a file without them is
+// version 1 and holds no hit record.
+TEST(TileFile, DecodesHitStatisticsWhenEncodedWithThem) {
+  VoxelMap ref;
+  const detail::BlockGrid grid = random_tile(ref);
+  detail::HitAccumulator hits(kResolution);
+  std::mt19937 rng(8u);
+  const auto edge = static_cast<std::int32_t>(kTileVoxels);
+  for (int i = 0; i < 3000; ++i) {
+    const VoxelKey k{kTile.x * edge + static_cast<std::int32_t>(rng() % kTileVoxels),
+                     kTile.y * edge + static_cast<std::int32_t>(rng() % kTileVoxels),
+                     kTile.z * edge + static_cast<std::int32_t>(rng() % 16)};
+    if (rng() % 3 == 0)
+      hits.add_visit(k);
+    else
+      hits.add_hit(k, key_to_center(k, kResolution) + Eigen::Vector3d(0.01, -0.02, 0.03) * static_cast<double>(rng() % 5));
+  }
+  std::vector<std::uint8_t> bytes;
+  (void)detail::encode_tile(grid, &hits, 7, kResolution, kTileVoxels, kTile, bytes);
+  const detail::TileHeader h =
+      detail::parse_tile_header(bytes.data(), bytes.size(), bytes.size(), kResolution, kTileVoxels, kTile, "t.iwt");
+  EXPECT_EQ(h.version, 2u);
+  EXPECT_EQ(h.hit_epoch, 7u);
+  EXPECT_GT(h.hit_record_count, 0u);
+  detail::HitAccumulator back(kResolution);
+  detail::DenseBlock scratch;
+  std::size_t voxels = 0;
+  detail::decode_tile(
+      bytes, h, kTileVoxels, "t.iwt", scratch, [&](const detail::DenseBlock& b) { voxels += b.known; },
+      [&](const VoxelKey& k, const detail::HitAccumulator::Block& cells) { back.merge(k, cells); });
+  EXPECT_EQ(voxels, ref.size());
+  std::size_t compared = 0;
+  hits.for_each_block([&](const VoxelKey& b, const detail::HitAccumulator::Block& cells) {
+    for (int i = 0; i < detail::kBlockVoxels; ++i) {
+      const detail::HitCell& want = cells.cells[static_cast<std::size_t>(i)];
+      const detail::HitCell* got = back.find(detail::voxel_of(b, i));
+      if (want.visits == 0) continue;
+      ASSERT_NE(got, nullptr);
+      EXPECT_EQ(got->hits, want.hits);
+      EXPECT_EQ(got->visits, want.visits);
+      EXPECT_EQ(got->offset_sum, want.offset_sum);
+      ++compared;
+    }
+  });
+  EXPECT_GT(compared, 1000u);
+  std::vector<std::uint8_t> plain;
+  (void)detail::encode_tile(grid, nullptr, 7, kResolution, kTileVoxels, kTile, plain);
+  const detail::TileHeader p =
+      detail::parse_tile_header(plain.data(), plain.size(), plain.size(), kResolution, kTileVoxels, kTile, "t.iwt");
+  EXPECT_EQ(p.version, 1u);
+  EXPECT_EQ(p.hit_record_count, 0u);
 }
 
 TEST(TileFile, ReportsCorruptionWhenAnyByteChangesOrTheFileIsCut) {
   VoxelMap ref;
   const detail::BlockGrid grid = random_tile(ref);
   std::vector<std::uint8_t> good;
-  (void)detail::encode_tile(grid, kResolution, kTileVoxels, kTile, good);
+  (void)detail::encode_tile(grid, nullptr, 0, kResolution, kTileVoxels, kTile, good);
   std::mt19937 rng(2u);
   // Every header byte, and a sample of payload bytes, each flipped in turn.
   std::vector<std::size_t> positions;

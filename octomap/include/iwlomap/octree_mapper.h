@@ -117,6 +117,18 @@ class OctreeMapper final : public BackendBase {
   [[nodiscard]] std::optional<VoxelState> query(const Eigen::Vector3d& point) const override;
   void for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const override;
 
+  /// Hit statistics of the IWLO model, kept as the RAM backend keeps them and equal to its
+  /// (hit_statistics.h); OctoMap's own model (update_point(), batch_update(), insert_ray()) adds
+  /// nothing to them.
+  void set_hit_accumulation(bool enabled) override;
+  [[nodiscard]] bool get_hit_accumulation() const override;
+  [[nodiscard]] std::optional<HitStatistics> hit_statistics(const Eigen::Vector3d& point) const override;
+  [[nodiscard]] Eigen::MatrixXd get_occupied_mean_positions(double min_probability = 0.5) override;
+
+  /// A deep copy (a new OctreeMapper): the octree, the exact state, both models' parameters, hit
+  /// statistics and thread count.
+  [[nodiscard]] std::unique_ptr<IMapperBackend> clone() const override;
+
   /// num_nodes and num_leaf_nodes are the octree's (OcTree::size(), getNumLeafNodes());
   /// memory_mb counts the octree (OcTree::memoryUsage()) plus the exact state and scratch
   /// buffers; memory_efficiency is known voxels / allocated voxel slots of the exact state. The

@@ -47,14 +47,25 @@ std::string hexfloat(double v) {
 
 std::vector<std::uint8_t> encode_meta(const MapMeta& m) {
   std::ostringstream s;
-  s.precision(17);
   s << kMetaFirstLine << "\n"
     << "format_version " << m.version << "\n"
     << "resolution " << hexfloat(m.resolution) << "\n"
     << "tile_size " << hexfloat(m.tile_size) << "\n"
     << "tile_voxels " << m.tile_voxels << "\n"
-    << "# resolution " << m.resolution << " m, tiles of " << m.tile_size << " m (" << m.tile_voxels
-    << " voxels); tiles are tile_<x>_<y>_<z>.iwt, see src/backends/disk/tile_file.h\n";
+    << "iwlo_params";
+  const IwloParams& p = m.params;
+  for (const double v : {p.sharpness, p.decay_rate, p.min_alpha, p.L_min, p.L_max, p.log_odds_occupied, p.log_odds_free,
+                         p.intensity_threshold, p.intensity_max, p.adaptive_enabled ? 1.0 : 0.0, p.adaptive_threshold,
+                         p.adaptive_max_ratio, p.occupied_threshold})
+    s << " " << hexfloat(v);
+  s << "\n"
+    << "hit_statistics " << (m.hit_statistics ? 1 : 0) << "\n"
+    << "hit_epoch " << m.hit_epoch << "\n"
+    << "# resolution " << shortest(m.resolution) << " m, tiles of " << shortest(m.tile_size) << " m (" << m.tile_voxels
+    << " voxels); tiles are tile_<x>_<y>_<z>.iwt, see src/backends/disk/tile_file.h\n"
+    << "# iwlo_params: sharpness decay_rate min_alpha L_min L_max log_odds_occupied log_odds_free"
+       " intensity_threshold intensity_max adaptive_enabled adaptive_threshold adaptive_max_ratio"
+       " occupied_threshold\n";
   const std::string text = s.str();
   return {text.begin(), text.end()};
 }
@@ -96,22 +107,12 @@ bool parse_tile_file_name(const std::string& name, VoxelKey& t) {
 
 std::uint32_t tile_voxels_for(double resolution, double tile_size) {
   if (!(std::isfinite(tile_size) && tile_size > 0.0))
-    throw std::invalid_argument("iwlomap: tile_size must be finite and > 0, got " + detail::describe("tile_size", tile_size));
-  const double voxels = tile_size / resolution;
-  const double whole = std::round(voxels);
-  const bool integral = std::abs(voxels - whole) <= 1e-9 * std::max(1.0, whole);
-  const auto blocks = static_cast<long long>(whole) / detail::kBlockEdge;
-  if (!integral || whole < detail::kBlockEdge || whole > kMaxTileVoxels ||
-      static_cast<long long>(whole) % detail::kBlockEdge != 0) {
-    std::ostringstream s;
-    s.precision(17);
-    s << "iwlomap: tile_size / resolution must be a whole multiple of 8 voxels (one 8^3 block) between 8 and "
-      << kMaxTileVoxels << ", got tile_size = " << tile_size << " and resolution = " << resolution << " ("
-      << voxels << " voxels)";
-    if (blocks >= 1) s << "; e.g. tile_size = " << static_cast<double>(blocks * detail::kBlockEdge) * resolution;
-    throw std::invalid_argument(s.str());
-  }
-  return static_cast<std::uint32_t>(whole);
+    throw std::invalid_argument("iwlomap: tile_size must be finite and > 0, got " + describe("tile_size", tile_size));
+  // The nearest whole number of blocks, at least one and at most kMaxTileVoxels / 8 (clamp first:
+  // the quotient may be beyond any integer type).
+  const double blocks = std::clamp(std::round(tile_size / resolution / kBlockEdge), 1.0,
+                                   static_cast<double>(kMaxTileVoxels / kBlockEdge));
+  return static_cast<std::uint32_t>(blocks) * static_cast<std::uint32_t>(kBlockEdge);
 }
 
 MapMeta parse_meta(const std::vector<std::uint8_t>& bytes, const std::string& path) {
@@ -134,6 +135,44 @@ MapMeta parse_meta(const std::vector<std::uint8_t>& bytes, const std::string& pa
         throw_bad_meta(path, "bad " + key + " '" + value + "'");
       (key == "format_version" ? m.version : m.tile_voxels) = static_cast<std::uint32_t>(v);
       (key == "format_version" ? have_version : have_voxels) = true;
+    } else if (key == "hit_statistics" || key == "hit_epoch") {
+      const unsigned long v = std::strtoul(value.c_str(), &end, 10);
+      if (end == value.c_str() || *end != '\0' || errno != 0 || v > std::numeric_limits<std::uint32_t>::max() ||
+          (key == "hit_statistics" && v > 1))
+        throw_bad_meta(path, "bad " + key + " '" + value + "'");
+      if (key == "hit_statistics")
+        m.hit_statistics = v == 1;
+      else
+        m.hit_epoch = static_cast<std::uint32_t>(v);
+    } else if (key == "iwlo_params") {
+      double v[13];
+      const char* q = value.c_str();
+      for (double& x : v) {
+        x = std::strtod(q, &end);
+        if (end == q) throw_bad_meta(path, "iwlo_params '" + value + "' has fewer than 13 numbers");
+        q = end;
+      }
+      if (*q != '\0') throw_bad_meta(path, "iwlo_params '" + value + "' has more than 13 numbers");
+      IwloParams p;
+      p.sharpness = v[0];
+      p.decay_rate = v[1];
+      p.min_alpha = v[2];
+      p.L_min = v[3];
+      p.L_max = v[4];
+      p.log_odds_occupied = v[5];
+      p.log_odds_free = v[6];
+      p.intensity_threshold = v[7];
+      p.intensity_max = v[8];
+      p.adaptive_enabled = v[9] != 0.0;
+      p.adaptive_threshold = v[10];
+      p.adaptive_max_ratio = v[11];
+      p.occupied_threshold = v[12];
+      try {
+        p.validate();
+      } catch (const std::invalid_argument& e) {
+        throw_bad_meta(path, e.what());
+      }
+      m.params = p;
     } else if (key == "resolution" || key == "tile_size") {
       const double v = std::strtod(value.c_str(), &end);
       if (end == value.c_str() || *end != '\0' || !std::isfinite(v) || v <= 0.0)
@@ -151,6 +190,14 @@ MapMeta parse_meta(const std::vector<std::uint8_t>& bytes, const std::string& pa
                            " this build reads; open the map with a newer iwlomap");
   if (m.version == 0) throw_bad_meta(path, "format_version 0");
   if (!have_res || !have_size || !have_voxels) throw_bad_meta(path, "resolution, tile_size or tile_voxels is missing");
+  // The three must agree: a tile edge of whole blocks within the limit, and a tile size that is
+  // that many voxels (to the rounding of the size requested when the map was made).
+  if (m.tile_voxels < kBlockEdge || m.tile_voxels > kMaxTileVoxels || m.tile_voxels % kBlockEdge != 0)
+    throw_bad_meta(path, "tile_voxels " + std::to_string(m.tile_voxels) + " is not a whole number of 8-voxel blocks in [8, " +
+                             std::to_string(kMaxTileVoxels) + "]");
+  if (tile_voxels_for(m.resolution, m.tile_size) != m.tile_voxels)
+    throw_bad_meta(path, "tile_size " + shortest(m.tile_size) + " m at resolution " + shortest(m.resolution) +
+                             " m is not tiles of " + std::to_string(m.tile_voxels) + " voxels");
   return m;
 }
 
@@ -185,33 +232,42 @@ MapDirectory::MapDirectory(std::string directory, double resolution, double tile
       std::uint64_t size = 0;
       const MapMeta m = parse_meta(read_file_prefix(meta_path, 1 << 16, size), meta_path);
       meta_bytes_ = size;
-      if (m.resolution != resolution || m.tile_size != tile_size || m.tile_voxels != tile_voxels) {
-        std::ostringstream s;
-        s.precision(17);
-        s << "iwlomap: the map in " << dir_ << " was created with resolution = " << m.resolution
-          << " and tile_size = " << m.tile_size << ", not resolution = " << resolution
-          << " and tile_size = " << tile_size << "; open it with the stored values";
-        throw std::invalid_argument(s.str());
-      }
+      meta_ = m;
+      // The stored tile edge in voxels decides: any requested size that rounds to it is accepted.
+      if (m.resolution != resolution || m.tile_voxels != tile_voxels)
+        throw std::invalid_argument("iwlomap: the map in " + dir_ + " was created with " +
+                                    describe("resolution", m.resolution) + " and tiles of " +
+                                    std::to_string(m.tile_voxels) + " voxels (" + describe("tile_size", m.tile_size) +
+                                    "), not " + describe("resolution", resolution) + " and tiles of " +
+                                    std::to_string(tile_voxels) + " voxels (" + describe("tile_size", tile_size) +
+                                    "); open it with the stored values");
     } else {
       if (!tile_names_.empty())
         throw StorageError(StorageError::Kind::kCorrupt, meta_path,
                            "iwlomap: " + dir_ + " holds tile files (" + tile_names_.front() +
                                ", ...) but no map metadata " + meta_path + "; its resolution and tile size are unknown");
       MapMeta m;
-      m.version = kTileFormatVersion;
       m.resolution = resolution;
-      m.tile_size = tile_size;
+      m.tile_size = static_cast<double>(tile_voxels) * resolution;  // the effective size
       m.tile_voxels = tile_voxels;
-      const std::vector<std::uint8_t> bytes = encode_meta(m);
-      write_file_durably(meta_path + kTempSuffix, meta_path, bytes);
-      sync_directory(dir_);
-      meta_bytes_ = bytes.size();
+      write_meta(m);
     }
   } catch (...) {
     ::close(lock_fd_);
     throw;
   }
+}
+
+void MapDirectory::write_meta(const MapMeta& meta) {
+  MapMeta m = meta;
+  // Version 2 once hit statistics have been on: tiles may hold them, which older builds cannot read.
+  m.version = m.hit_statistics || m.hit_epoch != 0 ? 2u : 1u;
+  const std::string meta_path = path_of(kMetaName);
+  const std::vector<std::uint8_t> bytes = encode_meta(m);
+  write_file_durably(meta_path + kTempSuffix, meta_path, bytes);
+  sync_directory(dir_);
+  meta_bytes_ = bytes.size();
+  meta_ = m;
 }
 
 MapDirectory::~MapDirectory() {

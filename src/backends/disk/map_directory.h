@@ -9,6 +9,7 @@
 //   iwlomap_map.staging   images of evicted tiles since the last flush (tile_store.h)
 //   *.tmp                 writes in progress; a crash may leave them, the next open removes them
 
+#include "iwlomap/iwlo.h"
 #include "iwlomap/voxel_key.h"
 
 #include <cstdint>
@@ -33,8 +34,11 @@ inline constexpr const char* kTempSuffix = ".tmp";
 struct MapMeta {
   std::uint32_t version = 0;
   double resolution = 0.0;
-  double tile_size = 0.0;
+  double tile_size = 0.0;  // the effective size, tile_voxels * resolution
   std::uint32_t tile_voxels = 0;
+  IwloParams params;             // the reference defaults in a file written before they were stored
+  bool hit_statistics = false;   // accumulation on
+  std::uint32_t hit_epoch = 0;   // incremented each time accumulation is turned on (tile_file.h)
 };
 
 /// An open map directory: created (with its parents) when missing, locked against a second
@@ -57,6 +61,11 @@ class MapDirectory {
   [[nodiscard]] const std::vector<std::string>& tile_names() const noexcept { return tile_names_; }
   /// Bytes of the metadata file.
   [[nodiscard]] std::uint64_t meta_bytes() const noexcept { return meta_bytes_; }
+  /// The metadata as read or written when the directory was opened, or as last written.
+  [[nodiscard]] const MapMeta& meta() const noexcept { return meta_; }
+  /// Replaces the metadata file durably (temporary file, fsync, rename, directory fsync); on
+  /// failure the old file stays and StorageError (kIo) names it.
+  void write_meta(const MapMeta& meta);
   /// Removes what interrupted writes and the last session's staging file left behind. Call once
   /// the tiles checked out, so that an open that fails changes no file.
   void remove_leftovers();
@@ -73,6 +82,7 @@ class MapDirectory {
   std::vector<std::string> tile_names_;
   std::vector<std::string> leftovers_;
   std::uint64_t meta_bytes_ = 0;
+  MapMeta meta_;
 };
 
 }  // namespace iwlomap::detail

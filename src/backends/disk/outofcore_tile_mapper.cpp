@@ -43,14 +43,39 @@ struct OutofcoreTileMapper::Impl {
   // no file.
   Impl(const std::string& directory, double res, double tile, std::size_t cache_tiles)
       : resolution(res),
-        tile_size(tile),
         tile_voxels(detail::tile_voxels_for(res, tile)),
+        tile_size(static_cast<double>(tile_voxels) * res),
         dir(directory, res, tile, tile_voxels),
         store(dir, res, tile_voxels),
-        cache(store, cache_tiles, res, tile_voxels, total_known),
-        routing(tile_voxels) {
+        cache(store, cache_tiles, res, tile_voxels, total_known, hit_settings),
+        routing(tile_voxels),
+        updater(dir.meta().params) {
     total_known = store.known();
+    hit_settings = {dir.meta().hit_statistics, dir.meta().hit_epoch};
     dir.remove_leftovers();
+  }
+
+  // ---- what the metadata records ----
+
+  // The parameters belong to the map: validated, written to the metadata, then used.
+  void set_params(const IwloParams& p) {
+    detail::Updater next(p);
+    detail::MapMeta m = dir.meta();
+    m.params = p;
+    dir.write_meta(m);
+    updater = std::move(next);
+  }
+
+  void set_hit_accumulation(bool enabled) {
+    if (enabled == hit_settings.enabled) return;
+    detail::MapMeta m = dir.meta();
+    m.hit_statistics = enabled;
+    // A new epoch each time it is turned on: statistics still in tiles from before are void.
+    if (enabled) ++m.hit_epoch;
+    dir.write_meta(m);
+    hit_settings = {enabled, m.hit_epoch};
+    for (const auto& t : cache.resident())
+      t->hits = enabled ? std::make_unique<detail::HitAccumulator>(resolution) : nullptr;
   }
 
   ~Impl() {
@@ -62,6 +87,20 @@ struct OutofcoreTileMapper::Impl {
   }
   Impl(const Impl&) = delete;
   Impl& operator=(const Impl&) = delete;
+
+  // Tile \p key, made resident when it is on disk (which may evict and write another); null when
+  // the map has no such tile.
+  const detail::Tile* resident_tile(const VoxelKey& key) {
+    if (detail::Tile* t = cache.find(key)) {
+      cache.touch(*t);
+      return t;
+    }
+    if (store.find(key) == nullptr) return nullptr;
+    std::vector<detail::Tile*> out;
+    detail::TileCache::PinScope pins(cache);
+    cache.make_resident({key}, out);
+    return out[0];
+  }
 
   // Every tile of the map, resident or on disk, in key order.
   [[nodiscard]] std::vector<VoxelKey> all_tiles() const {
@@ -117,13 +156,17 @@ struct OutofcoreTileMapper::Impl {
       }
       struct Locate {
         Impl& m;
-        detail::VoxelBlock& block(std::size_t j, const VoxelKey& block_key) {
+        detail::VoxelBlock& block(std::size_t j, const VoxelKey& block_key, std::size_t) {
           return m.accessors[m.routing.slot_of(j)].block(block_key);
         }
         detail::BlockGrid& grid(std::size_t j) { return m.slot_tile[m.routing.slot_of(j)]->grid; }
       };
       detail::apply_batch(detail::ObservationRows(batch.data(), nullptr), batch.size(), Locate{*this}, in, updater,
                           {total_known, none_skipped});
+      if (hit_settings.enabled)
+        for (std::size_t j = 0; j < batch.size(); ++j)
+          slot_tile[routing.slot_of(j)]->hits->add_row(points, intensities, is_occupied, batch[j].row,
+                                                        updater.params().intensity_threshold);
     } else {
       routing.sort(batch.size());
       for_each_group([&](const std::uint32_t* slots, detail::Tile* const* group, std::size_t count) {
@@ -133,13 +176,19 @@ struct OutofcoreTileMapper::Impl {
           struct Locate {
             detail::BlockAccessor acc;
             detail::BlockGrid& grid_;
-            detail::VoxelBlock& block(std::size_t, const VoxelKey& block_key) { return acc.block(block_key); }
+            detail::VoxelBlock& block(std::size_t, const VoxelKey& block_key, std::size_t) {
+              return acc.block(block_key);
+            }
             detail::BlockGrid& grid(std::size_t) { return grid_; }
           };
           const std::size_t from = routing.begin(slots[g]);
-          detail::apply_batch(detail::ObservationRows(batch.data(), routing.order() + from),
-                              routing.begin(slots[g] + 1) - from, Locate{detail::BlockAccessor(t.grid), t.grid}, in,
-                              updater, {total_known, none_skipped});
+          const std::size_t n = routing.begin(slots[g] + 1) - from;
+          detail::apply_batch(detail::ObservationRows(batch.data(), routing.order() + from), n,
+                              Locate{detail::BlockAccessor(t.grid), t.grid}, in, updater, {total_known, none_skipped});
+          if (t.hits)
+            for (std::size_t j = 0; j < n; ++j)
+              t.hits->add_row(points, intensities, is_occupied, batch[routing.order()[from + j]].row,
+                              updater.params().intensity_threshold);
         }
       });
     }
@@ -191,6 +240,12 @@ struct OutofcoreTileMapper::Impl {
       });
     }
     routing.close_ranges();  // slots added by free voxels own no hits
+    // The scan's hit statistics, gathered as every backend gathers them, merged tile by tile.
+    std::unique_ptr<detail::HitAccumulator> scan_hits;
+    if (hit_settings.enabled) {
+      scan_hits = std::make_unique<detail::HitAccumulator>(resolution);
+      scan_hits->add_scan(origin, points, intensities, max_range, updater.params().intensity_threshold);
+    }
 
     const std::size_t slots = routing.tiles().size();
     slot_group.assign(slots, kNoGroup);
@@ -237,6 +292,11 @@ struct OutofcoreTileMapper::Impl {
           observe(*b, v, h.intensity, true);
         }
       }
+      if (scan_hits)
+        scan_hits->for_each_block([&](const VoxelKey& block_key, const detail::HitAccumulator::Block& cells) {
+          const std::uint32_t s = routing.find(routing.tile_of_block(block_key));
+          if (s != detail::FlatKeyMap::kEmpty && slot_group[s] == group_id) slot_tile[s]->hits->merge(block_key, cells);
+        });
     });
     skipped += skip;
   }
@@ -310,7 +370,7 @@ struct OutofcoreTileMapper::Impl {
       try {
         detail::Tile* t = cache.find(k);
         if (t != nullptr && t->dirty) {
-          const std::uint64_t known = detail::encode_tile(t->grid, resolution, tile_voxels, k, io_buffer);
+          const std::uint64_t known = cache.encode(*t, io_buffer);
           store.commit(k, io_buffer, static_cast<std::size_t>(known));
           t->dirty = false;
         } else {
@@ -357,9 +417,10 @@ struct OutofcoreTileMapper::Impl {
   static constexpr std::size_t kNoGroup = 0;
 
   double resolution;
-  double tile_size;
   std::uint32_t tile_voxels;
+  double tile_size;  // effective: tile_voxels * resolution
   std::size_t total_known = 0;  // of the whole map (before `cache`, which keeps it exact)
+  detail::HitSettings hit_settings;  // (before `cache`, which reads it)
   detail::MapDirectory dir;
   detail::TileStore store;
   detail::TileCache cache;
@@ -422,15 +483,69 @@ void OutofcoreTileMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen
 void OutofcoreTileMapper::set_params(const IwloParams& params) {
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
-  m.updater = detail::Updater(params);
+  m.set_params(params);
 }
 void OutofcoreTileMapper::modify_params(const std::function<void(IwloParams&)>& change) {
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
   IwloParams p = m.updater.params();
   change(p);
-  m.updater = detail::Updater(p);
+  m.set_params(p);
 }
+
+void OutofcoreTileMapper::set_hit_accumulation(bool enabled) {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.set_hit_accumulation(enabled);
+}
+
+bool OutofcoreTileMapper::get_hit_accumulation() const {
+  const Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  return m.hit_settings.enabled;
+}
+
+std::optional<HitStatistics> OutofcoreTileMapper::hit_statistics(const Eigen::Vector3d& point) const {
+  (void)impl();
+  Impl& m = *impl_;  // may load a tile, as query() does
+  const VoxelKey key = world_to_key_checked(point, m.resolution);
+  std::lock_guard<std::mutex> lock(m.mutex);
+  if (!m.hit_settings.enabled)
+    throw std::logic_error("iwlomap: hit_statistics() needs hit accumulation, which is off (set_hit_accumulation(true))");
+  const detail::Tile* tile = m.resident_tile(m.routing.tile_of_voxel(key));
+  return tile != nullptr ? tile->hits->statistics(key) : std::nullopt;
+}
+
+Eigen::MatrixXd OutofcoreTileMapper::get_occupied_mean_positions(double min_probability) {
+  const double threshold = detail::resolve_min_probability(min_probability);
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  if (!m.hit_settings.enabled)
+    throw std::logic_error(
+        "iwlomap: get_occupied_mean_positions() needs hit accumulation, which is off (set_hit_accumulation(true))");
+  // get_occupied_voxels()'s walk (tiles in key order), each tile with its statistics.
+  std::vector<double> rows;
+  for (const VoxelKey& k : m.all_tiles()) {
+    const detail::Tile* t = m.cache.find(k);
+    std::unique_ptr<detail::Tile> loaded;
+    if (t == nullptr) {
+      loaded = m.cache.load(k);
+      t = loaded.get();
+    }
+    const std::vector<double> tile_rows = detail::occupied_rows(
+        [t](auto&& fn) { detail::for_each_known(t->grid, fn); }, threshold,
+        [t](const VoxelKey& key) { return t->hits->mean_position(key); });
+    rows.insert(rows.end(), tile_rows.begin(), tile_rows.end());
+  }
+  return detail::rows_to_matrix(rows);
+}
+
+std::unique_ptr<IMapperBackend> OutofcoreTileMapper::clone() const {
+  throw std::logic_error("iwlomap: the Disk backend's map lives in its directory and is not copied in RAM; "
+                         "OutofcoreTileMapper::copy_to() copies it to another directory");
+}
+
+bool OutofcoreTileMapper::supports(BackendFeature feature) const { return feature != BackendFeature::kClone; }
 
 IwloParams OutofcoreTileMapper::get_params() const {
   const Impl& m = impl();
@@ -460,17 +575,8 @@ std::optional<VoxelState> OutofcoreTileMapper::query(const Eigen::Vector3d& poin
   Impl& m = *impl_;
   const VoxelKey key = world_to_key_checked(point, m.resolution);
   std::lock_guard<std::mutex> lock(m.mutex);
-  const VoxelKey tile_key = m.routing.tile_of_voxel(key);
-  detail::Tile* tile = m.cache.find(tile_key);
-  if (tile == nullptr) {
-    if (m.store.find(tile_key) == nullptr) return std::nullopt;
-    std::vector<detail::Tile*> out;
-    detail::TileCache::PinScope pins(m.cache);
-    m.cache.make_resident({tile_key}, out);
-    tile = out[0];
-  } else {
-    m.cache.touch(*tile);
-  }
+  const detail::Tile* tile = m.resident_tile(m.routing.tile_of_voxel(key));
+  if (tile == nullptr) return std::nullopt;
   return detail::query_voxel(tile->grid, key);
 }
 
@@ -492,7 +598,7 @@ MemoryStats OutofcoreTileMapper::get_memory_usage() const {
            m.store.images().bucket_count() * sizeof(void*);
   std::size_t slots = 0, resident_known = 0;
   for (const auto& t : m.cache.resident()) {
-    bytes += sizeof(detail::Tile) + t->grid.bytes();
+    bytes += sizeof(detail::Tile) + t->grid.bytes() + (t->hits ? t->hits->bytes() : 0);
     slots += t->grid.num_slots();
     resident_known += t->grid.known_voxels();
   }
@@ -590,6 +696,31 @@ size_t OutofcoreTileMapper::get_peak_resident_tiles() const {
   const Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
   return m.cache.peak();
+}
+
+void OutofcoreTileMapper::copy_to(const std::string& directory) {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.flush();
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  fs::create_directories(directory, ec);
+  if (ec || !fs::is_directory(directory))
+    throw StorageError(StorageError::Kind::kIo, directory,
+                       "iwlomap: cannot copy the map to " + directory + ": " +
+                           (ec ? ec.message() : std::string("it exists and is not a directory")));
+  if (fs::exists(fs::path(directory) / "iwlomap_map.meta", ec))
+    throw StorageError(StorageError::Kind::kIo, directory,
+                       "iwlomap: cannot copy the map to " + directory + ": it already holds a map");
+  // Tiles first, the metadata last: until it is there, the copy is not a map.
+  std::vector<std::string> names;
+  for (const VoxelKey& k : m.all_tiles()) names.push_back(detail::tile_file_name(k));
+  names.push_back("iwlomap_map.meta");
+  for (const std::string& name : names) {
+    const std::string to = (fs::path(directory) / name).string();
+    detail::write_file_durably(to + detail::kTempSuffix, to, detail::read_file(m.dir.path_of(name)));
+  }
+  detail::sync_directory(directory);
 }
 
 DiskMapInfo OutofcoreTileMapper::read_map_info(const std::string& directory) {

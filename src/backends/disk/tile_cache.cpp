@@ -13,14 +13,29 @@ Tile* TileCache::find(const VoxelKey& key) const {
   return it == index_.end() ? nullptr : it->second;
 }
 
-// Reads and fully checks the newest image of a tile. Nothing changes when it throws.
-std::unique_ptr<Tile> TileCache::read_tile(const VoxelKey& key) {
+std::unique_ptr<Tile> TileCache::new_tile(const VoxelKey& key) const {
+  auto tile = std::make_unique<Tile>(key);
+  if (hits_.enabled) tile->hits = std::make_unique<HitAccumulator>(resolution_);
+  return tile;
+}
+
+std::unique_ptr<Tile> TileCache::load(const VoxelKey& key) {
   std::string where;
   const TileHeader h = store_.read(key, io_buffer_, where);
-  auto tile = std::make_unique<Tile>(key);
+  std::unique_ptr<Tile> tile = new_tile(key);
   auto scratch = std::make_unique<DenseBlock>();
-  decode_tile(io_buffer_, h, tile_voxels_, where, *scratch, [&](const DenseBlock& b) { tile->grid.add_dense(b); });
+  // Statistics of another epoch were gathered before accumulation was last turned off: empty now.
+  const bool take_hits = tile->hits != nullptr && h.hit_epoch == hits_.epoch;
+  decode_tile(
+      io_buffer_, h, tile_voxels_, where, *scratch, [&](const DenseBlock& b) { tile->grid.add_dense(b); },
+      [&](const VoxelKey& block_key, const HitAccumulator::Block& cells) {
+        if (take_hits) tile->hits->merge(block_key, cells);
+      });
   return tile;
+}
+
+std::uint64_t TileCache::encode(const Tile& t, std::vector<std::uint8_t>& out) const {
+  return encode_tile(t.grid, t.hits.get(), hits_.epoch, resolution_, tile_voxels_, t.key, out);
 }
 
 // Evicts least recently used unpinned tiles until one more fits. A dirty tile that cannot be
@@ -34,7 +49,7 @@ void TileCache::make_room() {
     if (victim == resident_.size()) throw std::logic_error("iwlomap: every resident tile is pinned");
     Tile& t = *resident_[victim];
     if (t.dirty) {  // flush() makes it durable
-      const std::uint64_t known = encode_tile(t.grid, resolution_, tile_voxels_, t.key, io_buffer_);
+      const std::uint64_t known = encode(t, io_buffer_);
       store_.stage(t.key, io_buffer_, static_cast<std::size_t>(known));
       t.dirty = false;
     }
@@ -65,7 +80,7 @@ void TileCache::make_resident(const std::vector<VoxelKey>& keys, std::vector<Til
     if (out[i] != nullptr) continue;
     TileImage* image = store_.find(keys[i]);
     if (image == nullptr) continue;
-    std::unique_ptr<Tile> tile = read_tile(keys[i]);
+    std::unique_ptr<Tile> tile = load(keys[i]);
     // The file may have changed since its header was read: keep the count exact.
     const std::size_t known = tile->grid.known_voxels();
     known_total_ = known_total_ - image->known + known;
@@ -76,7 +91,7 @@ void TileCache::make_resident(const std::vector<VoxelKey>& keys, std::vector<Til
   for (std::size_t i = 0; i < keys.size(); ++i) {
     if (out[i] != nullptr) continue;
     make_room();
-    out[i] = &insert(std::make_unique<Tile>(keys[i]));
+    out[i] = &insert(new_tile(keys[i]));
   }
 }
 

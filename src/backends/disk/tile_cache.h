@@ -6,6 +6,7 @@
 // evicted. Tiles that a call needs are pinned for the call's duration and never evicted by it.
 
 #include "backends/disk/tile_store.h"
+#include "integrate/hit_accumulator.h"
 #include "iwlomap/voxel_key.h"
 #include "storage/block_grid.h"
 
@@ -17,10 +18,17 @@
 
 namespace iwlomap::detail {
 
+/// Whether tiles accumulate hit statistics, and the epoch of the map's statistics (tile_file.h).
+struct HitSettings {
+  bool enabled = false;
+  std::uint32_t epoch = 0;
+};
+
 struct Tile {
   explicit Tile(const VoxelKey& k) : key(k) {}
   VoxelKey key;
   BlockGrid grid;
+  std::unique_ptr<HitAccumulator> hits;  // while accumulation is on
   bool dirty = false;   // the grid is newer than the tile's newest image on disk
   bool pinned = false;  // needed by the call in progress
   std::uint64_t last_used = 0;
@@ -30,10 +38,11 @@ class TileCache {
  public:
   /// \p known_total is the map's count of known voxels: reading a tile corrects it when the file
   /// changed since its header was read.
+  /// \p hits is the map's setting, read whenever a tile is made or written.
   TileCache(TileStore& store, std::size_t capacity, double resolution, std::uint32_t tile_voxels,
-            std::size_t& known_total)
+            std::size_t& known_total, const HitSettings& hits)
       : store_(store), capacity_(capacity), resolution_(resolution), tile_voxels_(tile_voxels),
-        known_total_(known_total) {}
+        known_total_(known_total), hits_(hits) {}
 
   /// The resident tile \p key, or null.
   [[nodiscard]] Tile* find(const VoxelKey& key) const;
@@ -47,6 +56,11 @@ class TileCache {
   /// keys[i]'s tile. Tiles on disk are read (and checked) before any new tile is created, so a
   /// corrupt tile makes the call fail before a voxel changes. Unpin with a PinScope.
   void make_resident(const std::vector<VoxelKey>& keys, std::vector<Tile*>& out);
+  /// Reads and fully checks the newest image of tile \p key (which must be on disk) into a tile
+  /// that is not cached. Nothing changes when it throws.
+  [[nodiscard]] std::unique_ptr<Tile> load(const VoxelKey& key);
+  /// Encodes \p t with its statistics into \p out; returns its known voxels.
+  std::uint64_t encode(const Tile& t, std::vector<std::uint8_t>& out) const;
   /// Marks \p t as just used.
   void touch(Tile& t) noexcept { t.last_used = ++tick_; }
 
@@ -70,7 +84,7 @@ class TileCache {
   };
 
  private:
-  std::unique_ptr<Tile> read_tile(const VoxelKey& key);
+  [[nodiscard]] std::unique_ptr<Tile> new_tile(const VoxelKey& key) const;
   void make_room();
   Tile& insert(std::unique_ptr<Tile> tile);
 
@@ -79,6 +93,7 @@ class TileCache {
   double resolution_;
   std::uint32_t tile_voxels_;
   std::size_t& known_total_;
+  const HitSettings& hits_;
   std::vector<std::unique_ptr<Tile>> resident_;
   std::unordered_map<VoxelKey, Tile*, VoxelKeyHash> index_;  // of resident_
   std::uint64_t tick_ = 0;

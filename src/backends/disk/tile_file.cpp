@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstring>
 #include <stdexcept>
+#include <utility>
 
 namespace iwlomap::detail {
 
@@ -53,8 +54,8 @@ std::string hex32(std::uint32_t v) {
   return buf;
 }
 
-std::uint64_t encode_tile(const BlockGrid& grid, double resolution, std::uint32_t tile_voxels, const VoxelKey& tile,
-                          std::vector<std::uint8_t>& out) {
+std::uint64_t encode_tile(const BlockGrid& grid, const HitAccumulator* hits, std::uint32_t hit_epoch, double resolution,
+                          std::uint32_t tile_voxels, const VoxelKey& tile, std::vector<std::uint8_t>& out) {
   std::vector<const VoxelBlock*> blocks;
   blocks.reserve(grid.num_blocks());
   std::size_t payload = 0;
@@ -64,6 +65,19 @@ std::uint64_t encode_tile(const BlockGrid& grid, double resolution, std::uint32_
     payload += kRecordFixedBytes + kVoxelBytes * b->known;
   }
   std::sort(blocks.begin(), blocks.end(), [](const VoxelBlock* a, const VoxelBlock* b) { return a->key < b->key; });
+  // The hit records: blocks with a visited voxel, sorted, with their visited voxels' count.
+  std::vector<std::pair<VoxelKey, const HitAccumulator::Block*>> hit_blocks;
+  std::vector<std::uint32_t> visited;
+  if (hits != nullptr) {
+    hits->for_each_block([&](const VoxelKey& k, const HitAccumulator::Block& b) { hit_blocks.emplace_back(k, &b); });
+    std::sort(hit_blocks.begin(), hit_blocks.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    for (const auto& [k, b] : hit_blocks) {
+      std::uint32_t n = 0;
+      for (const HitCell& c : b->cells) n += c.visits != 0 ? 1 : 0;
+      visited.push_back(n);
+      if (n != 0) payload += kRecordFixedBytes + kHitCellBytes * n;
+    }
+  }
 
   out.assign(kTileHeaderBytes + payload, 0);
   std::uint8_t* p = out.data() + kTileHeaderBytes;
@@ -99,10 +113,40 @@ std::uint64_t encode_tile(const BlockGrid& grid, double resolution, std::uint32_
     known += n;
     p = v;
   }
+  std::uint32_t hit_records = 0;
+  for (std::size_t r = 0; r < hit_blocks.size(); ++r) {
+    if (visited[r] == 0) continue;
+    const auto& [k, b] = hit_blocks[r];
+    store_u32(p, static_cast<std::uint32_t>(k.x));
+    store_u32(p + 4, static_cast<std::uint32_t>(k.y));
+    store_u32(p + 8, static_cast<std::uint32_t>(k.z));
+    store_u32(p + 12, visited[r]);
+    std::uint8_t* const mask = p + 16;
+    std::uint8_t* c = p + kRecordFixedBytes;
+    for (int w = 0; w < kBlockVoxels / 64; ++w) {
+      std::uint64_t bits = 0;
+      for (int i = 0; i < 64; ++i) {
+        const HitCell& cell = b->cells[file_to_block_index(w * 64 + i)];
+        if (cell.visits == 0) continue;
+        bits |= std::uint64_t{1} << i;
+        for (std::size_t a = 0; a < 3; ++a) {
+          std::uint64_t raw;
+          std::memcpy(&raw, &cell.offset_sum[a], sizeof raw);
+          store_u64(c + 8 * a, raw);
+        }
+        store_u32(c + 24, cell.hits);
+        store_u32(c + 28, cell.visits);
+        c += kHitCellBytes;
+      }
+      store_u64(mask + 8 * w, bits);
+    }
+    ++hit_records;
+    p = c;
+  }
 
   std::uint8_t* h = out.data();
   std::memcpy(h, kMagic, sizeof kMagic);
-  store_u32(h + 8, kTileFormatVersion);
+  store_u32(h + 8, hits != nullptr ? 2u : 1u);
   store_u32(h + 12, kByteOrderMark);
   store_u32(h + 16, static_cast<std::uint32_t>(kTileHeaderBytes));
   store_u32(h + 20, tile_voxels);
@@ -116,6 +160,8 @@ std::uint64_t encode_tile(const BlockGrid& grid, double resolution, std::uint32_
   store_u64(h + 48, known);
   store_u64(h + 56, payload);
   store_u32(h + 64, crc32(out.data() + kTileHeaderBytes, payload));
+  store_u32(h + 68, hit_records);
+  store_u32(h + 72, hits != nullptr ? hit_epoch : 0u);
   store_u32(h + 76, crc32(h, kTileHeaderBytes - 4));
   return known;
 }
@@ -155,6 +201,10 @@ TileHeader parse_tile_header(const std::uint8_t* data, std::size_t available, st
   h.known_voxels = load_u64(data + 48);
   h.payload_bytes = load_u64(data + 56);
   h.payload_crc = load_u32(data + 64);
+  h.hit_record_count = load_u32(data + 68);
+  h.hit_epoch = load_u32(data + 72);
+  if (h.version == 1 && (h.hit_record_count != 0 || h.hit_epoch != 0))
+    throw_corrupt(path, "the reserved header bytes 68..75 of a version-1 tile are not 0");
   if (h.resolution != resolution || h.tile_voxels != tile_voxels)
     throw_corrupt(path, "written for resolution " + std::to_string(h.resolution) + " and " +
                             std::to_string(h.tile_voxels) + "-voxel tiles, the map has " + std::to_string(resolution) +
@@ -168,7 +218,7 @@ TileHeader parse_tile_header(const std::uint8_t* data, std::size_t available, st
   if (file_size > kTileHeaderBytes + h.payload_bytes)
     throw_corrupt(path, std::to_string(file_size) + " bytes, longer than the " +
                             std::to_string(kTileHeaderBytes + h.payload_bytes) + " its header announces");
-  if (h.payload_bytes < static_cast<std::uint64_t>(h.record_count) * kRecordFixedBytes ||
+  if (h.payload_bytes < (static_cast<std::uint64_t>(h.record_count) + h.hit_record_count) * kRecordFixedBytes ||
       h.known_voxels > static_cast<std::uint64_t>(h.record_count) * kBlockVoxels)
     throw_corrupt(path, "inconsistent record count " + std::to_string(h.record_count));
   return h;

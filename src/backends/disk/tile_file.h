@@ -1,14 +1,14 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #pragma once
 
-// The on-disk format of the Disk backend's tiles and the durable file operations behind it.
+// The on-disk format of the Disk backend's tiles.
 //
 // A tile file is a fixed 80-byte header followed by a payload of block records; every integer is
 // little-endian whatever the host, so a map directory can move between machines.
 //
 //   header  offset  field
 //           0       magic "IWLOTILE" (8 bytes)
-//           8       u32 format version (kTileFormatVersion)
+//           8       u32 format version: 1, or 2 when the file holds hit statistics
 //           12      u32 byte-order mark 0x01020304 (bytes 04 03 02 01 on disk)
 //           16      u32 header size (80)
 //           20      u32 tile edge in voxels
@@ -18,18 +18,26 @@
 //           48      u64 known voxels
 //           56      u64 payload bytes
 //           64      u32 CRC-32 of the payload
-//           68      u32 x 2 reserved (0)
+//           68      u32 hit record count (version 2; 0 in version 1)
+//           72      u32 hit statistics epoch (version 2; 0 in version 1)
 //           76      u32 CRC-32 of header bytes 0..75
 //   record  i32 x, y, z block coordinate (absolute, voxel key >> 3), u32 known voxels n (1..512),
 //           8 x u64 mask of the known voxels (bit i = the voxel at x + 8 y + 64 z inside the
 //           block, whatever the in-memory layout), then n x (f32 log-odds bits as u32, u16 count)
-//           in that order. Records are sorted by block coordinate, which
-//           makes a file a canonical image of its tile and lets the reader detect duplicates.
+//           in that order.
+//   hit record (version 2, after the voxel records): i32 x, y, z block coordinate, u32 visited
+//           voxels n (1..512), 8 x u64 mask of the visited voxels (as above), then n x (3 x f64
+//           sum of hit offsets from the voxel centre, u32 hits, u32 visits).
+// Records of each kind are sorted by block coordinate, which makes a file a canonical image of its
+// tile and lets the reader detect duplicates. The epoch ties a tile's statistics to the map's
+// (the metadata's hit_epoch): statistics of another epoch were gathered before accumulation was
+// last turned off, and are read as empty.
 //
 // The header has its own checksum so that a map can be opened by reading headers only; the
 // version is checked before that checksum, so a newer file is reported as newer, not as corrupt.
 
 #include "backends/disk/file_io.h"
+#include "integrate/hit_accumulator.h"
 #include "storage/block_grid.h"
 #include "iwlomap/voxel_key.h"
 
@@ -37,15 +45,18 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
+#include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace iwlomap::detail {
 
-inline constexpr std::uint32_t kTileFormatVersion = 1;
+inline constexpr std::uint32_t kTileFormatVersion = 2;  // the newest this build reads and writes
 inline constexpr std::size_t kTileHeaderBytes = 80;
 inline constexpr std::size_t kRecordFixedBytes = 12 + 4 + 64;  // key, count, mask
 inline constexpr std::size_t kVoxelBytes = 6;                  // f32 log-odds, u16 count
+inline constexpr std::size_t kHitCellBytes = 32;               // 3 x f64 offset sum, u32 hits, u32 visits
 
 /// index_in_block() of the voxel at file position \p f = x + 8 y + 64 z of a block record.
 [[nodiscard]] inline std::size_t file_to_block_index(int f) noexcept {
@@ -65,12 +76,15 @@ struct TileHeader {
   std::uint64_t known_voxels = 0;
   std::uint64_t payload_bytes = 0;
   std::uint32_t payload_crc = 0;
+  std::uint32_t hit_record_count = 0;
+  std::uint32_t hit_epoch = 0;
 };
 
-/// Serialises the known voxels of \p grid, the blocks of tile \p tile, into \p out (replaced).
+/// Serialises the known voxels of \p grid, the blocks of tile \p tile, and the statistics in
+/// \p hits (null: none, and a version-1 file) of epoch \p hit_epoch, into \p out (replaced).
 /// Returns the number of known voxels written.
-std::uint64_t encode_tile(const BlockGrid& grid, double resolution, std::uint32_t tile_voxels, const VoxelKey& tile,
-                          std::vector<std::uint8_t>& out);
+std::uint64_t encode_tile(const BlockGrid& grid, const HitAccumulator* hits, std::uint32_t hit_epoch, double resolution,
+                          std::uint32_t tile_voxels, const VoxelKey& tile, std::vector<std::uint8_t>& out);
 
 /// Parses and checks the header in \p data (the first \p available bytes of a file of
 /// \p file_size bytes): magic, version, byte order, header checksum, the expected resolution,
@@ -81,12 +95,20 @@ std::uint64_t encode_tile(const BlockGrid& grid, double resolution, std::uint32_
                                            const std::string& path);
 
 /// Checks the payload checksum of a whole tile file \p bytes (whose header \p h was parsed) and
-/// calls fn(const DenseBlock&) once per record, in file order. \p scratch is reused for every
-/// record: its voxels hold the record's known voxels and zeros elsewhere, its known field the
-/// record's count. Throws StorageError (kCorrupt) naming \p path for any inconsistency.
+/// calls fn(const DenseBlock&) once per voxel record, in file order, then
+/// hit_fn(block key, const HitAccumulator::Block&) once per hit record. \p scratch is reused for
+/// every record: its voxels hold the record's known voxels and zeros elsewhere, its known field
+/// the record's count. Throws StorageError (kCorrupt) naming \p path for any inconsistency.
+template <class Fn, class HitFn>
+void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, std::uint32_t tile_voxels,
+                 const std::string& path, DenseBlock& scratch, Fn&& fn, HitFn&& hit_fn);
+
+/// decode_tile() of the voxel records only (the hit records are checked all the same).
 template <class Fn>
 void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, std::uint32_t tile_voxels,
-                 const std::string& path, DenseBlock& scratch, Fn&& fn);
+                 const std::string& path, DenseBlock& scratch, Fn&& fn) {
+  decode_tile(bytes, h, tile_voxels, path, scratch, std::forward<Fn>(fn), [](const VoxelKey&, const HitAccumulator::Block&) {});
+}
 
 /// "0x1234abcd", for messages.
 [[nodiscard]] std::string hex32(std::uint32_t v);
@@ -126,9 +148,9 @@ inline void store_u64(std::uint8_t* p, std::uint64_t v) noexcept {
 
 // ---- template body ----
 
-template <class Fn>
+template <class Fn, class HitFn>
 void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, std::uint32_t tile_voxels,
-                 const std::string& path, DenseBlock& scratch, Fn&& fn) {
+                 const std::string& path, DenseBlock& scratch, Fn&& fn, HitFn&& hit_fn) {
   if (bytes.size() != kTileHeaderBytes + h.payload_bytes)
     throw_corrupt(path, "the file has " + std::to_string(bytes.size()) + " bytes, its header announces " +
                             std::to_string(kTileHeaderBytes + h.payload_bytes) + " (changed while read?)");
@@ -138,8 +160,13 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
   if (crc != h.payload_crc)
     throw_corrupt(path, "payload checksum mismatch (stored CRC-32 " + hex32(h.payload_crc) + ", computed " +
                             hex32(crc) + ")");
-  const auto edge = static_cast<std::int32_t>(tile_voxels / kBlockEdge);
-  const VoxelKey lo{h.tile.x * edge, h.tile.y * edge, h.tile.z * edge};
+  // Block coordinates in 64 bits: a tile coordinate times the edge may exceed int32.
+  const std::int64_t edge = static_cast<std::int64_t>(tile_voxels / kBlockEdge);
+  const std::int64_t lo[3] = {h.tile.x * edge, h.tile.y * edge, h.tile.z * edge};
+  const auto block_in_tile = [&](const VoxelKey& k) {
+    return k.x >= lo[0] && k.x < lo[0] + edge && k.y >= lo[1] && k.y < lo[1] + edge && k.z >= lo[2] &&
+           k.z < lo[2] + edge;
+  };
   std::uint64_t known_total = 0;
   VoxelKey previous{};
   for (std::uint32_t r = 0; r < h.record_count; ++r) {
@@ -148,8 +175,7 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
     const VoxelKey key{static_cast<std::int32_t>(load_u32(p)), static_cast<std::int32_t>(load_u32(p + 4)),
                        static_cast<std::int32_t>(load_u32(p + 8))};
     const std::uint32_t n = load_u32(p + 12);
-    if (key.x < lo.x || key.x >= lo.x + edge || key.y < lo.y || key.y >= lo.y + edge || key.z < lo.z ||
-        key.z >= lo.z + edge)
+    if (!block_in_tile(key))
       throw_corrupt(path, where + " holds block (" + std::to_string(key.x) + ", " + std::to_string(key.y) + ", " +
                               std::to_string(key.z) + ") outside the tile");
     if (r > 0 && !(previous < key)) throw_corrupt(path, where + " is out of order or repeated");
@@ -185,6 +211,52 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
     }
     known_total += n;
     fn(static_cast<const DenseBlock&>(scratch));
+  }
+  std::unique_ptr<HitAccumulator::Block> cells;
+  for (std::uint32_t r = 0; r < h.hit_record_count; ++r) {
+    const std::string where = "hit record " + std::to_string(r);
+    if (static_cast<std::size_t>(end - p) < kRecordFixedBytes) throw_corrupt(path, where + " is cut short");
+    const VoxelKey key{static_cast<std::int32_t>(load_u32(p)), static_cast<std::int32_t>(load_u32(p + 4)),
+                       static_cast<std::int32_t>(load_u32(p + 8))};
+    const std::uint32_t n = load_u32(p + 12);
+    if (!block_in_tile(key))
+      throw_corrupt(path, where + " holds block (" + std::to_string(key.x) + ", " + std::to_string(key.y) + ", " +
+                              std::to_string(key.z) + ") outside the tile");
+    if (r > 0 && !(previous < key)) throw_corrupt(path, where + " is out of order or repeated");
+    previous = key;
+    std::uint64_t mask[kBlockVoxels / 64];
+    std::uint32_t bits = 0;
+    for (int w = 0; w < kBlockVoxels / 64; ++w) {
+      mask[w] = load_u64(p + 16 + 8 * w);
+      bits += static_cast<std::uint32_t>(__builtin_popcountll(mask[w]));
+    }
+    if (n == 0 || n != bits)
+      throw_corrupt(path, where + " announces " + std::to_string(n) + " voxels, its mask holds " + std::to_string(bits));
+    p += kRecordFixedBytes;
+    if (static_cast<std::size_t>(end - p) < static_cast<std::size_t>(n) * kHitCellBytes)
+      throw_corrupt(path, where + " is cut short");
+    if (!cells) cells = std::make_unique<HitAccumulator::Block>();
+    cells->cells.fill(HitCell{});
+    for (int w = 0; w < kBlockVoxels / 64; ++w) {
+      std::uint64_t m = mask[w];
+      while (m != 0) {
+        const int i = w * 64 + __builtin_ctzll(m);
+        m &= m - 1;
+        HitCell& c = cells->cells[file_to_block_index(i)];
+        for (std::size_t a = 0; a < 3; ++a) {
+          const std::uint64_t raw = load_u64(p + 8 * a);
+          std::memcpy(&c.offset_sum[a], &raw, sizeof raw);
+        }
+        c.hits = load_u32(p + 24);
+        c.visits = load_u32(p + 28);
+        if (c.visits == 0 || c.hits > c.visits || !std::isfinite(c.offset_sum[0]) || !std::isfinite(c.offset_sum[1]) ||
+            !std::isfinite(c.offset_sum[2]))
+          throw_corrupt(path, where + " holds voxel " + std::to_string(i) +
+                                  " with no visit, more hits than visits or a non-finite sum");
+        p += kHitCellBytes;
+      }
+    }
+    hit_fn(static_cast<const VoxelKey&>(key), static_cast<const HitAccumulator::Block&>(*cells));
   }
   if (p != end) throw_corrupt(path, "the payload has bytes after its last record");
   if (known_total != h.known_voxels)

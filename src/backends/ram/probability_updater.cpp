@@ -24,6 +24,11 @@ namespace iwlomap {
 
 struct ProbabilityUpdater::Impl {
   explicit Impl(double res) : resolution(res) {}
+  // A copy holds the same voxels (in the same iteration order), parameters, counts and hit
+  // statistics, and scratch of its own.
+  Impl(const Impl& o)
+      : resolution(o.resolution), updater(o.updater), grid(o.grid.clone()), known(o.known), skipped(o.skipped),
+        hits(o.hits) {}
 
   // The batch is validated first (nothing changes when it throws for its input), then applied by
   // the shared kernel with the grid's own block look-up.
@@ -33,7 +38,9 @@ struct ProbabilityUpdater::Impl {
     if (points.rows() == 0) return;
     struct Locate {
       detail::BlockGrid& grid_;
-      detail::VoxelBlock& block(std::size_t, const VoxelKey& block_key) { return grid_.get_or_create(block_key); }
+      detail::VoxelBlock& block(std::size_t, const VoxelKey& block_key, std::size_t slot) {
+        return grid_.get_or_create(block_key, slot);
+      }
       detail::BlockGrid& grid(std::size_t) { return grid_; }
     };
     detail::apply_batch(detail::PointRows(points, intensities, resolution, skip != 0),
@@ -49,7 +56,7 @@ struct ProbabilityUpdater::Impl {
   detail::ScanScratch scratch;
   std::size_t known = 0;
   std::size_t skipped = 0;
-  std::unique_ptr<detail::HitAccumulator> hits;  // null while hit accumulation is off
+  detail::HitStatisticsOf hits{resolution};
 };
 
 ProbabilityUpdater::ProbabilityUpdater(double resolution) {
@@ -67,14 +74,14 @@ void ProbabilityUpdater::batch_update_iwlo(const Eigen::MatrixXd& points, const 
                                            const std::vector<bool>& is_occupied) {
   Impl& m = impl();
   m.apply_batch(points, intensities, is_occupied, nullptr);
-  if (m.hits) m.hits->add_batch(points, intensities, is_occupied, m.updater.params().intensity_threshold);
+  m.hits.add_batch(points, intensities, is_occupied, m.updater.params().intensity_threshold);
 }
 
 void ProbabilityUpdater::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                                            const std::vector<bool>& is_occupied, const Eigen::VectorXd& weights) {
   Impl& m = impl();
   m.apply_batch(points, intensities, is_occupied, &weights);
-  if (m.hits) m.hits->add_batch(points, intensities, is_occupied, m.updater.params().intensity_threshold);
+  m.hits.add_batch(points, intensities, is_occupied, m.updater.params().intensity_threshold);
 }
 
 void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
@@ -112,7 +119,7 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
   }
   detail::apply_scan_hits(m.scratch, m.grid, observe(m.known));
   m.skipped += skip;
-  if (m.hits) m.hits->add_scan(origin, points, intensities, max_range, m.updater.params().intensity_threshold);
+  m.hits.add_scan(origin, points, intensities, max_range, m.updater.params().intensity_threshold);
 }
 
 void ProbabilityUpdater::set_params(const IwloParams& params) { impl().set(params); }
@@ -143,43 +150,31 @@ void ProbabilityUpdater::for_each_voxel(const std::function<void(const VoxelKey&
   detail::for_each_state(impl().grid, visit);
 }
 
-void ProbabilityUpdater::set_hit_accumulation(bool enabled) {
-  Impl& m = impl();
-  if (!enabled)
-    m.hits.reset();
-  else if (!m.hits)
-    m.hits = std::make_unique<detail::HitAccumulator>(m.resolution);
-}
+void ProbabilityUpdater::set_hit_accumulation(bool enabled) { impl().hits.set_enabled(enabled); }
 
-bool ProbabilityUpdater::get_hit_accumulation() const { return impl().hits != nullptr; }
+bool ProbabilityUpdater::get_hit_accumulation() const { return impl().hits.enabled(); }
 
 std::optional<HitStatistics> ProbabilityUpdater::hit_statistics(const Eigen::Vector3d& point) const {
   const Impl& m = impl();
-  if (!m.hits)
-    throw std::logic_error("iwlomap: hit_statistics() needs hit accumulation, which is off (set_hit_accumulation(true))");
-  const VoxelKey key = world_to_key_checked(point, m.resolution);
-  const detail::HitCell* c = m.hits->find(key);
-  if (c == nullptr || c->visits == 0) return std::nullopt;
-  return m.hits->statistics(key, *c);
+  return m.hits.get("hit_statistics()").statistics(world_to_key_checked(point, m.resolution));
 }
 
 Eigen::MatrixXd ProbabilityUpdater::get_occupied_mean_positions(double min_probability) {
-  const double threshold = detail::resolve_min_probability(min_probability);
   const Impl& m = impl();
-  if (!m.hits)
-    throw std::logic_error(
-        "iwlomap: get_occupied_mean_positions() needs hit accumulation, which is off (set_hit_accumulation(true))");
-  // The same walk as get_occupied_voxels(), so the rows come in the same order.
-  return detail::rows_to_matrix(detail::occupied_rows(
-      [&m](auto&& fn) { detail::for_each_known(m.grid, fn); }, threshold, [&m](const VoxelKey& key) {
-        const detail::HitCell* c = m.hits->find(key);
-        return c != nullptr ? m.hits->mean_position(key, *c) : key_to_center(key, m.resolution);
-      }));
+  return detail::occupied_mean_matrix(m.grid, m.hits.get("get_occupied_mean_positions()"), min_probability);
+}
+
+std::unique_ptr<IMapperBackend> ProbabilityUpdater::clone() const {
+  const Impl& m = impl();
+  auto copy = std::make_unique<ProbabilityUpdater>(m.resolution);
+  copy->impl_ = std::make_unique<Impl>(m);
+  copy->set_num_threads(get_num_threads());
+  return copy;
 }
 
 MemoryStats ProbabilityUpdater::get_memory_usage() const {
   const Impl& m = impl();
-  const std::size_t bytes = sizeof(Impl) + m.grid.bytes() + m.scratch.bytes() + (m.hits ? m.hits->bytes() : 0);
+  const std::size_t bytes = sizeof(Impl) + m.grid.bytes() + m.scratch.bytes() + m.hits.bytes();
   const std::size_t slots = m.grid.num_slots();
   return MemoryStats{m.known, m.known, static_cast<double>(bytes) / (1024.0 * 1024.0),
                      slots == 0 ? 0.0 : static_cast<double>(m.known) / static_cast<double>(slots)};
@@ -195,7 +190,7 @@ void ProbabilityUpdater::clear() {
   m.scratch.release();
   m.known = 0;
   m.skipped = 0;
-  if (m.hits) m.hits->clear();
+  m.hits.clear();
 }
 
 size_t ProbabilityUpdater::prune() {
