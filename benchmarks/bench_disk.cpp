@@ -75,6 +75,7 @@ struct Options {
   int reps = 3;
   std::string dir;
   bool quick = false;
+  bool hits = false;
 };
 
 double terrain(double x, double y) { return 1.2 * std::sin(0.15 * x) * std::cos(0.11 * y) + 0.5 * std::sin(0.37 * x + 0.2 * y); }
@@ -154,6 +155,7 @@ struct Job {
   std::size_t cache = 0;
   int pings = 0;
   std::string dir;
+  bool hits = false;  // hit statistics accumulated
 };
 
 Result run_job(const Job& job) {
@@ -163,6 +165,7 @@ Result run_job(const Job& job) {
     map = std::make_unique<iwlomap::OutofcoreTileMapper>(job.dir, kResolution, kTileSize, job.cache);
   else
     map = std::make_unique<iwlomap::ProbabilityUpdater>(kResolution);
+  map->set_hit_accumulation(job.hits);
   for (int k = 0; k < job.pings; ++k) {
     const Ping p = make_ping(k);
     const double c0 = thread_cpu_s();
@@ -228,10 +231,11 @@ Result in_child(const Job& job) {
 
 void print_usage(const char* argv0) {
   std::printf(
-      "Usage: %s [--pings N] [--reps N] [--dir DIR] [--quick]\n"
+      "Usage: %s [--pings N] [--reps N] [--dir DIR] [--hit-statistics] [--quick]\n"
       "  --pings N  pings of the survey line (default 700: 280 m of track, %d rays per ping)\n"
       "  --reps N   repetitions of each insertion run; medians are reported (default 3)\n"
       "  --dir DIR  where the map directories are made (default: the system's temporary directory)\n"
+      "  --hit-statistics  every backend accumulates hit statistics (off by default)\n"
       "  --quick    200 pings, 1 repetition\n",
       argv0, kBeams * kSlices);
 }
@@ -248,6 +252,8 @@ int main(int argc, char** argv) {
       o.reps = std::max(1, std::atoi(argv[++i]));
     } else if (a == "--dir" && i + 1 < argc) {
       o.dir = argv[++i];
+    } else if (a == "--hit-statistics") {
+      o.hits = true;
     } else if (a == "--quick") {
       o.quick = true;
       o.pings = 200;
@@ -265,9 +271,9 @@ int main(int argc, char** argv) {
 
   try {
     std::printf("bench_disk: survey line of %d pings x %d rays (%.0f m of track), resolution %.2f m, tiles of %.1f m "
-                "(%d voxels)\n\n",
+                "(%d voxels), hit statistics %s\n\n",
                 o.pings, kBeams * kSlices, o.pings * kStep, kResolution, kTileSize,
-                static_cast<int>(std::lround(kTileSize / kResolution)));
+                static_cast<int>(std::lround(kTileSize / kResolution)), o.hits ? "on" : "off");
     iwlomap::bench::retain_map_memory();
 
     // A probe: how many tiles one ping touches, i.e. the working set of the stream.
@@ -287,7 +293,8 @@ int main(int argc, char** argv) {
       for (int r = 0; r < o.reps; ++r)
         for (int b = 0; b < kConfigs; ++b) {
           const int which = (b + r) % kConfigs;
-          runs[which].push_back(in_child({which != 0, scans, caches[which], o.pings, which != 0 ? fresh_dir() : ""}));
+          runs[which].push_back(
+              in_child({which != 0, scans, caches[which], o.pings, which != 0 ? fresh_dir() : "", o.hits}));
         }
       const auto rate = [](const std::vector<Result>& v, bool cpu) {
         std::vector<double> x;

@@ -9,6 +9,11 @@
 
 #include <gtest/gtest.h>
 
+#include <pthread.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <atomic>
 #include <future>
 #include <memory>
@@ -174,6 +179,66 @@ TEST(BackgroundJob, DestructionWithQueuedJobsJoinsWithoutRunningThem) {
   }  // destructor: discards 1..9, lets job 0 finish, joins
   opener.join();
   EXPECT_EQ(counter->load(), 1);
+}
+
+// Sequential mode has no queue and no worker: terminate() and cancel() change nothing, and later
+// jobs still run.
+TEST(BackgroundJob, TerminateIsANoOpWhenSequential) {
+  BackgroundJob<int, int, int> job(ExecutionMode::kSequential, [](int&& x, int&) { return x + 1; });
+  job.submit(1);
+  job.terminate();
+  job.cancel();
+  job.submit(2);
+  EXPECT_EQ(job.wait(), (std::vector<int>{2, 3}));
+}
+
+// The worker blocks SIGINT and SIGTERM, so an interrupt goes to the program's own threads.
+TEST(BackgroundJob, WorkerBlocksInterruptAndTerminateSignals) {
+  BackgroundJob<int, int, bool> job(ExecutionMode::kParallel, [](int&&, int&) {
+    sigset_t mask;
+    pthread_sigmask(SIG_BLOCK, nullptr, &mask);
+    return sigismember(&mask, SIGINT) == 1 && sigismember(&mask, SIGTERM) == 1;
+  });
+  job.submit(0);
+  EXPECT_EQ(job.wait(), (std::vector<bool>{true}));
+  sigset_t mine;
+  pthread_sigmask(SIG_BLOCK, nullptr, &mine);
+  EXPECT_EQ(sigismember(&mine, SIGINT), 0) << "the creating thread's mask must be left as it was";
+}
+
+// A job that waits for its own BackgroundJob would wait for itself: wait(), write_map() and
+// with_context() throw std::logic_error instead, in both modes. Checked in a child process with an
+// alarm, so that a deadlock fails the test instead of hanging the suite.
+TEST(BackgroundJob, ThrowsInsteadOfDeadlockWhenAJobWaitsForItsOwnJob) {
+  for (const ExecutionMode mode : {ExecutionMode::kSequential, ExecutionMode::kParallel}) {
+    const pid_t child = ::fork();
+    ASSERT_GE(child, 0);
+    if (child == 0) {
+      ::alarm(10);
+      using Job = BackgroundJob<int, int, int>;
+      Job* self = nullptr;
+      int refused = 0;
+      Job job(mode, [&](int&& which, int&) {
+        try {
+          if (which == 0) (void)self->wait();
+          if (which == 1) self->write_map(which, [](int&, int) {});
+          if (which == 2) self->with_context([](int&) { return 0; });
+        } catch (const std::logic_error&) {
+          ++refused;
+        }
+        return which;
+      });
+      self = &job;
+      for (int which = 0; which < 3; ++which) job.submit(which);
+      const std::vector<int> outputs = job.wait();
+      ::_exit(refused == 3 && outputs == std::vector<int>{0, 1, 2} ? 0 : 1);
+    }
+    int status = 0;
+    ASSERT_EQ(::waitpid(child, &status, 0), child);
+    EXPECT_TRUE(WIFEXITED(status)) << (mode == ExecutionMode::kSequential ? "sequential" : "parallel")
+                                   << ": the job deadlocked (killed by the alarm)";
+    EXPECT_EQ(WEXITSTATUS(status), 0) << (mode == ExecutionMode::kSequential ? "sequential" : "parallel");
+  }
 }
 
 TEST(BackgroundJob, RejectsBadConstructionArguments) {

@@ -6,6 +6,8 @@
 #include <iwlomap/filters/occupancy_filter.h>
 #include <iwlomap/probability_updater.h>
 
+#include "reference_api_double.h"
+
 #include <gtest/gtest.h>
 #include <pcl/filters/passthrough.h>
 #include <pcl/filters/voxel_grid.h>
@@ -342,6 +344,31 @@ TEST(OccupancyFilter, UsesAGivenBackendAndAppliesParameters) {
   EXPECT_EQ(f.getMap().get(), backend.get());
   EXPECT_DOUBLE_EQ(backend->get_params().intensity_threshold, 0.0);
   EXPECT_GT(out.size(), 0u);
+}
+
+// A backend of the reference API alone (only the required methods) works in the filter through
+// IMapperBackend's defaults, and gives the RAM backend's output.
+TEST(OccupancyFilter, WorksWithABackendOfTheReferenceApiAlone) {
+  Filter with_double, with_ram;
+  with_double.setBackend(std::make_shared<iwlomap::test_support::ReferenceApiDouble>(0.1));
+  with_ram.setResolution(0.1);
+  Cloud a, b;
+  for (std::uint32_t seed : {7u, 8u}) {
+    auto in = make_wall_scan(150.0f, 300, seed);
+    with_double.setInputCloud(in);
+    with_double.filter(a);
+    with_ram.setInputCloud(in);
+    with_ram.filter(b);
+  }
+  ASSERT_GT(b.size(), 10u);
+  ASSERT_EQ(a.size(), b.size());
+  const auto sorted = [](const Cloud& c) {
+    std::vector<std::tuple<float, float, float, float>> v;
+    for (const auto& p : c) v.emplace_back(p.x, p.y, p.z, p.intensity);
+    std::sort(v.begin(), v.end());
+    return v;
+  };
+  EXPECT_EQ(sorted(a), sorted(b));
 }
 
 TEST(OccupancyFilter, MaxRangeClipsRaysAndDropsTheirHits) {

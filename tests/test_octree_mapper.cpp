@@ -333,6 +333,28 @@ TEST(OctreeMapper, ValidatesModelParametersWhenConstructedOrSet) {
   EXPECT_EQ(map.get_prob_miss(), 0.2);
   EXPECT_EQ(map.get_prob_thres_min(), 0.2);
   EXPECT_EQ(map.get_prob_thres_max(), 0.9);
+  EXPECT_EQ(map.get_params().occupied_threshold, 0.9);  // the reference API: max is the .bt threshold too
+}
+
+// set_occupancy_thresholds(min, max) as the reference API has it: max is also the threshold of
+// occupancy in .bt output, so a voxel at p = 0.85 is written free under max = 0.9, occupied under
+// max = 0.8.
+TEST(OctreeMapper, WritesBtOccupancyAboveMaxThresholdWhenThresholdsSet) {
+  TempDir dir;
+  for (const double max : {0.8, 0.9}) {
+    OctreeMapper map(0.1);
+    Eigen::MatrixXd p(1, 3);
+    p << 0.05, 0.05, 0.05;
+    map.set_log_odds(p, Eigen::VectorXd::Constant(1, iwlo::log_odds(0.85)));
+    map.set_occupancy_thresholds(0.12, max);
+    const std::string path = dir.sub("t" + std::to_string(static_cast<int>(max * 10)) + ".bt");
+    map.save_to_file(path);
+    ProbabilityUpdater back(0.1);
+    import_octomap(path, back);
+    const auto v = back.query({0.05, 0.05, 0.05});
+    ASSERT_TRUE(v.has_value());
+    EXPECT_EQ(v->probability > 0.5, max < 0.85) << "max " << max;
+  }
 }
 
 TEST(OctreeMapper, KeepsExactStateAndShrinksTreeWhenPruned) {

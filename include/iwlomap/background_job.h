@@ -5,6 +5,9 @@
 /// BackgroundJob: runs work either in the caller's thread (sequential) or on one worker thread
 /// (parallel), with the same results and the same error behaviour in both modes.
 
+#include <pthread.h>
+#include <signal.h>
+
 #include <algorithm>
 #include <condition_variable>
 #include <cstddef>
@@ -42,7 +45,10 @@ enum class QueueFullPolicy {
 ///
 /// Threads: submit(), wait(), write_map(), terminate(), is_running() and dropped() may be called
 /// from any thread; the context must only be touched through with_context(), which waits first.
-/// The destructor discards queued jobs, lets a running job finish and joins the worker.
+/// The destructor discards queued jobs, lets a running job finish and joins the worker. The worker
+/// thread blocks SIGINT and SIGTERM, so an interrupt is delivered to the program's own threads,
+/// never to it. A job must not wait for its own BackgroundJob: wait(), write_map() and
+/// with_context() called from inside a job throw std::logic_error instead of deadlocking.
 template <class Input, class Context, class Output>
 class BackgroundJob {
  public:
@@ -54,7 +60,7 @@ class BackgroundJob {
       : mode_(mode), work_(std::move(work)), context_(std::move(context)), capacity_(capacity), policy_(policy) {
     if (!work_) throw std::invalid_argument("BackgroundJob: the work function is empty");
     if (capacity_ == 0) throw std::invalid_argument("BackgroundJob: capacity must be >= 1, got 0");
-    if (mode_ == ExecutionMode::kParallel) worker_ = std::thread([this] { run_worker(); });
+    if (mode_ == ExecutionMode::kParallel) start_worker();
   }
 
   ~BackgroundJob() { terminate(); }
@@ -67,7 +73,7 @@ class BackgroundJob {
   [[nodiscard]] ExecutionMode mode() const noexcept { return mode_; }
 
   /// Queues \p input (parallel) or runs it now (sequential). Throws std::logic_error after
-  /// terminate().
+  /// terminate() in parallel mode.
   void submit(Input input) {
     std::unique_lock<std::mutex> lock(mutex_);
     if (terminated_) throw std::logic_error("BackgroundJob: submit() after terminate()");
@@ -97,6 +103,7 @@ class BackgroundJob {
   /// Blocks until every submitted job has finished; returns their outputs in submission order and
   /// rethrows the first exception a job threw since the last wait().
   std::vector<Output> wait() {
+    refuse_inside_job("wait()");
     std::unique_lock<std::mutex> lock(mutex_);
     idle_.wait(lock, [this] { return queue_.empty() && in_flight_ == 0; });
     return take_results();
@@ -105,20 +112,24 @@ class BackgroundJob {
   /// wait(), then apply(map, output) for each output in order.
   template <class Map, class Apply>
   void write_map(Map& map, Apply&& apply) {
+    refuse_inside_job("write_map()");
     for (Output& o : wait()) apply(map, o);
   }
 
   /// Calls fn(context) once no job runs (waits for queued jobs first); returns what fn returns.
   template <class Fn>
   decltype(auto) with_context(Fn&& fn) {
+    refuse_inside_job("with_context()");
     std::unique_lock<std::mutex> lock(mutex_);
     idle_.wait(lock, [this] { return queue_.empty() && in_flight_ == 0; });
     return fn(context_);
   }
 
   /// Discards queued jobs and refuses new ones without waiting: a running job goes on to its end.
-  /// For a sensor loop that must not block; terminate() also waits. Idempotent.
+  /// For a sensor loop that must not block; terminate() also waits. Idempotent. In sequential
+  /// mode there is no queue and no worker: a no-op, and later submit() calls still run.
   void cancel() {
+    if (mode_ == ExecutionMode::kSequential) return;
     {
       std::lock_guard<std::mutex> lock(mutex_);
       terminated_ = true;
@@ -130,7 +141,7 @@ class BackgroundJob {
   }
 
   /// cancel(), then waits for a running job to finish and stops the worker. Finished outputs (and
-  /// a pending exception) stay available to wait(). Idempotent.
+  /// a pending exception) stay available to wait(). Idempotent; a no-op in sequential mode.
   void terminate() {
     cancel();
     if (worker_.joinable()) worker_.join();
@@ -158,6 +169,30 @@ class BackgroundJob {
   }
 
  private:
+  // The worker is created with SIGINT and SIGTERM blocked (a new thread inherits the creating
+  // thread's mask), so that the process's handlers run on the threads that expect them.
+  void start_worker() {
+    sigset_t block, previous;
+    sigemptyset(&block);
+    sigaddset(&block, SIGINT);
+    sigaddset(&block, SIGTERM);
+    pthread_sigmask(SIG_BLOCK, &block, &previous);
+    try {
+      worker_ = std::thread([this] { run_worker(); });
+    } catch (...) {
+      pthread_sigmask(SIG_SETMASK, &previous, nullptr);
+      throw;
+    }
+    pthread_sigmask(SIG_SETMASK, &previous, nullptr);
+  }
+
+  void refuse_inside_job(const char* what) const {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (running_on_ == std::this_thread::get_id())
+      throw std::logic_error(std::string("BackgroundJob: ") + what +
+                             " called from inside a job of the same BackgroundJob, which would wait for itself");
+  }
+
   void run_worker() {
     std::unique_lock<std::mutex> lock(mutex_);
     for (;;) {
@@ -177,6 +212,10 @@ class BackgroundJob {
   void execute(std::size_t ticket, Input&& input) {
     std::exception_ptr error;
     std::vector<Output> out;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      running_on_ = std::this_thread::get_id();
+    }
     try {
       out.push_back(work_(std::move(input), context_));
     } catch (...) {
@@ -184,6 +223,7 @@ class BackgroundJob {
     }
     {
       std::lock_guard<std::mutex> lock(mutex_);
+      running_on_ = std::thread::id();
       if (error && !error_) error_ = error;
       if (!out.empty()) results_.emplace_back(ticket, std::move(out.front()));
       --in_flight_;
@@ -222,6 +262,7 @@ class BackgroundJob {
   std::size_t dropped_ = 0;
   std::size_t max_queued_ = 0;
   bool terminated_ = false;
+  std::thread::id running_on_;  // the thread running a job, if one runs
   std::thread worker_;
 };
 

@@ -111,9 +111,9 @@ class OutofcoreTileMapper final : public BackendBase {
   /// \param tile_size   tile edge in metres (> 0, finite), rounded to the nearest whole number of
   ///                    8^3 blocks: at least one block (8 voxels), at most 1,024 (8,192 voxels).
   ///                    The effective size is what get_tile_size() returns and the metadata
-  ///                    stores (the defaults give 200 voxels = 25 blocks = 10 m; 0.1 m voxels
-  ///                    give 96 voxels = 9.6 m). Reopening a map accepts any tile_size that
-  ///                    rounds to the stored number of voxels.
+  ///                    stores (the defaults give 200 voxels = 25 blocks = 10 m; at 0.1 m,
+  ///                    10 m is 12.5 blocks, rounded to 13: 104 voxels = 10.4 m). Reopening a
+  ///                    map accepts any tile_size that rounds to the stored number of voxels.
   /// \param cache_tiles resident tiles (>= 1)
   /// Throws std::invalid_argument for an invalid argument or one that differs from the stored map,
   /// StorageError for a directory or file that cannot be used (see the class comment).

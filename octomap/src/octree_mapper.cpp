@@ -264,7 +264,11 @@ void OctreeMapper::set_probability_params(double prob_hit, double prob_miss) {
 void OctreeMapper::set_occupancy_thresholds(double prob_thres_min, double prob_thres_max) {
   Impl& m = impl();
   check_model(m.prob_hit, m.prob_miss, prob_thres_min, prob_thres_max);
+  IwloParams p = m.updater.params();
+  p.occupied_threshold = prob_thres_max;
+  detail::Updater next(p);
   m.set_model(m.prob_hit, m.prob_miss, prob_thres_min, prob_thres_max);
+  m.updater = std::move(next);
 }
 double OctreeMapper::get_prob_hit() const { return impl().prob_hit; }
 double OctreeMapper::get_prob_miss() const { return impl().prob_miss; }

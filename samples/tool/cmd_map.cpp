@@ -31,7 +31,9 @@ output:
   --async                   read the next file while the previous one is integrated (a background
                             thread integrates; the map is the same)
   --mean-positions          write each occupied voxel at the mean position of the hits that fell
-                            in it (sub-voxel surface estimate) instead of its centre (ram backend)
+                            in it (sub-voxel surface estimate) instead of its centre; hit
+                            statistics are gathered from this run on (every backend; a disk map
+                            keeps them in its tiles)
 )";
 
 }  // namespace
@@ -55,11 +57,7 @@ int run_map(const std::vector<std::string>& argv) {
 
   const MapSetup setup = map_setup_from(args);
   const bool mean_positions = args.flag("--mean-positions");
-  try {
-    if (mean_positions) setup.map->set_hit_accumulation(true);
-  } catch (const std::logic_error& e) {
-    throw UsageError(std::string("--mean-positions needs --backend ram (") + e.what() + ")");
-  }
+  if (mean_positions) setup.map->set_hit_accumulation(true);
   const MapOutputs extra = map_outputs_from(args);
   const bool async = args.flag("--async");
   if (async && !setup.ray_casting) throw UsageError("--async needs ray casting (drop --no-rays)");

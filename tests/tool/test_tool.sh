@@ -145,6 +145,20 @@ expect no_partial_left test ! -e "$WORK/empty_out.pcd.partial"
 check map_mean_positions 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --mean-positions -o "$WORK/occupied_mean.pcd"
 n_mean=$(grep -a -m1 '^POINTS' "$WORK/occupied_mean.pcd" | awk '{print $2}')
 expect mean_positions_same_count test "${n_mean:-0}" = "$n_pcd"
+# ... with every backend: the same voxels at the same mean positions (the statistics agree).
+check map_mean_positions_disk 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --mean-positions \
+  --backend disk --tiles "$WORK/tiles_mean" -o "$WORK/occupied_mean_disk.pcd"
+# (The backends list voxels in their own order: compare the points sorted, as ASCII.)
+for f in occupied_mean occupied_mean_disk; do
+  pcl_convert_pcd_ascii_binary "$WORK/$f.pcd" "$WORK/$f.ascii.pcd" 0 >/dev/null
+  sed '1,/^DATA/d' "$WORK/$f.ascii.pcd" | sort >"$WORK/$f.sorted"
+done
+expect mean_positions_disk_same_points cmp -s "$WORK/occupied_mean.sorted" "$WORK/occupied_mean_disk.sorted"
+# Any tile size: 10 m at 0.1 m is 12.5 blocks, rounded to 13 (10.4 m), reported by info.
+check map_disk_default_tile 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.1 --sensor lidar --backend disk \
+  --tiles "$WORK/tiles_01" -o "$WORK/occupied_disk01.pcd"
+check info_disk_tile_size 0 "$TOOL" info "$WORK/tiles_01"
+expect info_shows_effective_tile grep -q "of 10.4 m" "$WORK/info_disk_tile_size.out"
 check help_pyramid 0 "$TOOL" pyramid --help
 check pyramid 0 "$TOOL" pyramid "$WORK/occupied.pcd" --resolution 0.2 --levels 3 -o "$WORK/pyramid"
 expect pyramid_files bash -c "for k in 0 1 2; do test -s '$WORK/pyramid/level_'\$k'.png' && test -s '$WORK/pyramid/level_'\$k'.txt' || exit 1; done"

@@ -75,7 +75,10 @@ class OctreeMapper final : public BackendBase {
   void insert_ray(const Eigen::Vector3d& origin, const Eigen::Vector3d& endpoint, double max_range = -1.0);
   /// OctoMap model: probabilities of a hit, in (0.5, 1), and of a miss, in (0, 0.5).
   void set_probability_params(double prob_hit, double prob_miss);
-  /// OctoMap model: clamping thresholds, probabilities with 0 < min < max < 1.
+  /// The reference API's thresholds, probabilities with 0 < min < max < 1: OctoMap's clamping
+  /// thresholds, and \p prob_thres_max is also the occupancy threshold, the map's
+  /// IwloParams::occupied_threshold, above which a voxel is written occupied to a .bt file
+  /// (export_octomap(), save_to_file()).
   void set_occupancy_thresholds(double prob_thres_min, double prob_thres_max);
   [[nodiscard]] double get_prob_hit() const;
   [[nodiscard]] double get_prob_miss() const;
