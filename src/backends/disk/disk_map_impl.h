@@ -1,0 +1,446 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+// The Disk backend's state and operations (OutofcoreTileMapper::Impl): the map directory
+// (map_directory), the tiles on disk (tile_store), the resident tiles (tile_cache) and the routing
+// of a call's items to tiles (tile_routing) put together; updates run the core's batch kernel on
+// resident tiles. Callers hold `mutex`; the public methods (outofcore_tile_mapper.cpp) take it once
+// per call.
+
+#include "iwlomap/outofcore_tile_mapper.h"
+
+#include "backends/disk/file_io.h"
+#include "backends/disk/map_directory.h"
+#include "backends/disk/tile_cache.h"
+#include "backends/disk/tile_file.h"
+#include "backends/disk/tile_routing.h"
+#include "backends/disk/tile_store.h"
+#include "integrate/absolute_log_odds.h"
+#include "integrate/batch_apply.h"
+#include "integrate/batch_input.h"
+#include "integrate/scan_scratch.h"
+#include "integrate/updater.h"
+#include "integrate/voxel_update.h"
+#include "model/checks.h"
+#include "storage/block_grid.h"
+#include "storage/free_memory.h"
+#include "storage/grid_reads.h"
+
+#include <algorithm>
+#include <cmath>
+#include <exception>
+#include <filesystem>
+#include <limits>
+#include <mutex>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace iwlomap {
+
+struct OutofcoreTileMapper::Impl {
+  // Opening: the directory (lock, metadata, tile list), then every tile header; what interrupted
+  // writes left behind is removed only once every tile checked out, so an open that fails changes
+  // no file.
+  Impl(const std::string& directory, double res, double tile, std::size_t cache_tiles)
+      : resolution(res),
+        tile_voxels(detail::tile_voxels_for(res, tile)),
+        tile_size(static_cast<double>(tile_voxels) * res),
+        dir(directory, res, tile, tile_voxels),
+        store(dir, res, tile_voxels),
+        cache(store, cache_tiles, res, tile_voxels, total_known, hit_settings),
+        routing(tile_voxels),
+        updater(dir.meta().params) {
+    total_known = store.known();
+    hit_settings = {dir.meta().hit_statistics, dir.meta().hit_epoch};
+    dir.remove_leftovers();
+  }
+
+  // ---- what the metadata records ----
+
+  // The parameters belong to the map: validated, written to the metadata, then used.
+  void set_params(const IwloParams& p) {
+    detail::Updater next(p);
+    detail::MapMeta m = dir.meta();
+    m.params = p;
+    dir.write_meta(m);
+    updater = std::move(next);
+  }
+
+  void set_hit_accumulation(bool enabled) {
+    if (enabled == hit_settings.enabled) return;
+    detail::MapMeta m = dir.meta();
+    m.hit_statistics = enabled;
+    // A new epoch each time it is turned on: statistics still in tiles from before are void.
+    if (enabled) ++m.hit_epoch;
+    dir.write_meta(m);
+    hit_settings = {enabled, m.hit_epoch};
+    for (const auto& t : cache.resident())
+      t->hits = enabled ? std::make_unique<detail::HitAccumulator>(resolution) : nullptr;
+  }
+
+  ~Impl() {
+    // The destructor's contract: flush, never throw. Every file keeps its last complete state.
+    try {
+      flush();
+    } catch (...) {
+    }
+  }
+  Impl(const Impl&) = delete;
+  Impl& operator=(const Impl&) = delete;
+
+  // Tile \p key, made resident when it is on disk (which may evict and write another); null when
+  // the map has no such tile.
+  const detail::Tile* resident_tile(const VoxelKey& key) {
+    if (detail::Tile* t = cache.find(key)) {
+      cache.touch(*t);
+      return t;
+    }
+    if (store.find(key) == nullptr) return nullptr;
+    std::vector<detail::Tile*> out;
+    detail::TileCache::PinScope pins(cache);
+    cache.make_resident({key}, out);
+    return out[0];
+  }
+
+  // Every tile of the map, resident or on disk, in key order.
+  [[nodiscard]] std::vector<VoxelKey> all_tiles() const {
+    std::vector<VoxelKey> keys;
+    keys.reserve(store.images().size() + cache.resident().size());
+    for (const auto& [k, image] : store.images()) keys.push_back(k);
+    for (const auto& t : cache.resident())
+      if (store.images().count(t->key) == 0) keys.push_back(t->key);
+    std::sort(keys.begin(), keys.end());
+    return keys;
+  }
+
+  // Splits the tiles of `routing` into groups of at most the cache's capacity, resident tiles
+  // first so that a call never evicts a tile it needs later. Calls fn(group slots, their tiles,
+  // count) per group, the group's tiles resident and pinned.
+  template <class Fn>
+  void for_each_group(Fn&& fn) {
+    const std::size_t n = routing.tiles().size();
+    std::vector<std::uint32_t> slots(n);
+    for (std::uint32_t s = 0; s < n; ++s) slots[s] = s;
+    std::stable_partition(slots.begin(), slots.end(),
+                          [&](std::uint32_t s) { return cache.find(routing.tiles()[s]) != nullptr; });
+    std::vector<VoxelKey> keys;
+    std::vector<detail::Tile*> group_tiles;
+    for (std::size_t first = 0; first < n; first += cache.capacity()) {
+      const std::size_t last = std::min(n, first + cache.capacity());
+      keys.clear();
+      for (std::size_t i = first; i < last; ++i) keys.push_back(routing.tiles()[slots[i]]);
+      detail::TileCache::PinScope pins(cache);
+      cache.make_resident(keys, group_tiles);
+      fn(slots.data() + first, group_tiles.data(), last - first);
+    }
+  }
+
+  // ---- updates ----
+
+  // When every tile of the batch fits in the cache, the tiles are loaded first (so an I/O error
+  // changes nothing) and the batch is applied in call order, exactly as the RAM backend applies
+  // it; otherwise tile group by tile group, each tile's observations in call order.
+  void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                   const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights) {
+    const std::size_t skip = detail::prepare_batch(points, intensities, is_occupied, weights, resolution, batch);
+    const detail::BatchValues in{intensities, is_occupied, weights};
+    routing.assign(batch.size(), [&](std::size_t i) { return batch[i].key; });
+    std::size_t none_skipped = 0;  // prepared observations are all finite
+    if (routing.tiles().size() <= cache.capacity()) {
+      detail::TileCache::PinScope pins(cache);
+      cache.make_resident(routing.tiles(), slot_tile);
+      accessors.clear();
+      for (detail::Tile* t : slot_tile) {
+        accessors.emplace_back(t->grid);
+        t->dirty = true;
+      }
+      struct Locate {
+        Impl& m;
+        detail::VoxelBlock& block(std::size_t j, const VoxelKey& block_key, std::size_t) {
+          return m.accessors[m.routing.slot_of(j)].block(block_key);
+        }
+        detail::BlockGrid& grid(std::size_t j) { return m.slot_tile[m.routing.slot_of(j)]->grid; }
+      };
+      detail::apply_batch(detail::ObservationRows(batch.data(), nullptr), batch.size(), Locate{*this}, in, updater,
+                          {total_known, none_skipped});
+      if (hit_settings.enabled)
+        for (std::size_t j = 0; j < batch.size(); ++j)
+          slot_tile[routing.slot_of(j)]->hits->add_row(points, intensities, is_occupied, batch[j].row,
+                                                        updater.params().intensity_threshold);
+    } else {
+      routing.sort(batch.size());
+      for_each_group([&](const std::uint32_t* slots, detail::Tile* const* group, std::size_t count) {
+        for (std::size_t g = 0; g < count; ++g) {
+          detail::Tile& t = *group[g];
+          t.dirty = true;
+          struct Locate {
+            detail::BlockAccessor acc;
+            detail::BlockGrid& grid_;
+            detail::VoxelBlock& block(std::size_t, const VoxelKey& block_key, std::size_t) {
+              return acc.block(block_key);
+            }
+            detail::BlockGrid& grid(std::size_t) { return grid_; }
+          };
+          const std::size_t from = routing.begin(slots[g]);
+          const std::size_t n = routing.begin(slots[g] + 1) - from;
+          detail::apply_batch(detail::ObservationRows(batch.data(), routing.order() + from), n,
+                              Locate{detail::BlockAccessor(t.grid), t.grid}, in, updater, {total_known, none_skipped});
+          if (t.hits)
+            for (std::size_t j = 0; j < n; ++j)
+              t.hits->add_row(points, intensities, is_occupied, batch[routing.order()[from + j]].row,
+                              updater.params().intensity_threshold);
+        }
+      });
+    }
+    skipped += skip;
+  }
+
+  void observe(detail::VoxelBlock& b, detail::Voxel& v, double intensity, bool occupied_flag) {
+    if (detail::observe_voxel(b, v, intensity, occupied_flag, 1.0, updater)) ++total_known;
+  }
+
+  // Hits are routed like batch observations; free voxels stay in the scan scratch, whose 32^3
+  // chunks may straddle tiles: each tile's slot lists the chunks that hold its free voxels.
+  void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                   double max_range, int threads) {
+    detail::check_scan_input(origin, points, intensities, max_range, resolution);
+    const std::size_t skip = scratch.collect(origin, points, intensities, max_range, resolution, threads);
+    const std::size_t chunks = scratch.num_chunks();
+    const std::vector<detail::ScanScratch::Hit>& hits = scratch.hits();
+    routing.assign(hits.size(), [&](std::size_t i) { return hits[i].key; });
+    routing.sort(hits.size());
+    const auto grow_lists = [&] {
+      const std::size_t slots = routing.tiles().size();
+      if (slot_chunks.size() < slots) slot_chunks.resize(slots);
+      if (slot_last_chunk.size() < slots) slot_last_chunk.resize(slots);
+    };
+    grow_lists();
+    for (std::size_t s = 0; s < routing.tiles().size(); ++s) {
+      slot_chunks[s].clear();
+      slot_last_chunk[s] = kNoChunk;
+    }
+    for (std::size_t ci = 0; ci < chunks; ++ci) {
+      VoxelKey last_block{};
+      bool first = true;
+      scratch.for_each_free(ci, ci + 1, [&](const VoxelKey& block_key, int) {
+        if (!first && block_key == last_block) return;
+        first = false;
+        last_block = block_key;
+        const std::size_t before = routing.tiles().size();
+        const std::uint32_t s = routing.slot(routing.tile_of_block(block_key));
+        if (routing.tiles().size() != before) {
+          grow_lists();
+          slot_chunks[s].clear();
+          slot_last_chunk[s] = kNoChunk;
+        }
+        if (slot_last_chunk[s] != ci) {
+          slot_chunks[s].push_back(ci);
+          slot_last_chunk[s] = ci;
+        }
+      });
+    }
+    routing.close_ranges();  // slots added by free voxels own no hits
+    // The scan's hit statistics, gathered as every backend gathers them, merged tile by tile.
+    std::unique_ptr<detail::HitAccumulator> scan_hits;
+    if (hit_settings.enabled) {
+      scan_hits = std::make_unique<detail::HitAccumulator>(resolution);
+      scan_hits->add_scan(origin, points, intensities, max_range, updater.params().intensity_threshold);
+    }
+
+    const std::size_t slots = routing.tiles().size();
+    slot_group.assign(slots, kNoGroup);
+    slot_tile.assign(slots, nullptr);
+    std::size_t group_id = 0;
+    for_each_group([&](const std::uint32_t* group_slots, detail::Tile* const* group, std::size_t count) {
+      ++group_id;
+      for (std::size_t g = 0; g < count; ++g) {
+        slot_group[group_slots[g]] = group_id;
+        slot_tile[group_slots[g]] = group[g];
+        group[g]->dirty = true;
+      }
+      detail::Tile* tile = nullptr;
+      detail::VoxelBlock* block = nullptr;
+      VoxelKey block_key_cached{};
+      bool have_block = false;
+      const auto apply_free = [&](const VoxelKey& block_key, int index) {
+        if (!have_block || block_key != block_key_cached) {
+          have_block = true;
+          block_key_cached = block_key;
+          const std::uint32_t s = routing.find(routing.tile_of_block(block_key));
+          tile = slot_group[s] == group_id ? slot_tile[s] : nullptr;
+          block = tile != nullptr ? &tile->grid.get_or_create(block_key) : nullptr;
+        }
+        if (block != nullptr) observe(*block, tile->grid.voxel(*block, index), 0.0, false);
+      };
+      if (count == slots) {
+        scratch.for_each_free(0, chunks, apply_free);
+      } else {
+        group_chunks.clear();
+        for (std::size_t g = 0; g < count; ++g)
+          group_chunks.insert(group_chunks.end(), slot_chunks[group_slots[g]].begin(), slot_chunks[group_slots[g]].end());
+        std::sort(group_chunks.begin(), group_chunks.end());
+        group_chunks.erase(std::unique(group_chunks.begin(), group_chunks.end()), group_chunks.end());
+        for (const std::size_t ci : group_chunks) scratch.for_each_free(ci, ci + 1, apply_free);
+      }
+      for (std::size_t g = 0; g < count; ++g) {
+        detail::BlockAccessor acc(group[g]->grid);
+        const std::uint32_t s = group_slots[g];
+        for (std::size_t j = routing.begin(s); j < routing.begin(s + 1); ++j) {
+          const detail::ScanScratch::Hit& h = hits[routing.order()[j]];
+          detail::VoxelBlock* b = nullptr;
+          detail::Voxel& v = acc.voxel(h.key, b);
+          observe(*b, v, h.intensity, true);
+        }
+      }
+      if (scan_hits)
+        scan_hits->for_each_block([&](const VoxelKey& block_key, const detail::HitAccumulator::Block& cells) {
+          const std::uint32_t s = routing.find(routing.tile_of_block(block_key));
+          if (s != detail::FlatKeyMap::kEmpty && slot_group[s] == group_id) slot_tile[s]->hits->merge(block_key, cells);
+        });
+    });
+    skipped += skip;
+  }
+
+  void set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) {
+    std::vector<detail::AbsoluteLogOdds> values;
+    const std::size_t skip = detail::prepare_log_odds(points, log_odds, updater.params(), resolution, values);
+    routing.assign(values.size(), [&](std::size_t i) { return values[i].key; });
+    routing.sort(values.size());
+    for_each_group([&](const std::uint32_t* slots, detail::Tile* const* group, std::size_t count) {
+      for (std::size_t g = 0; g < count; ++g) {
+        detail::Tile& t = *group[g];
+        t.dirty = true;
+        detail::BlockAccessor acc(t.grid);
+        for (std::size_t j = routing.begin(slots[g]); j < routing.begin(slots[g] + 1); ++j) {
+          const detail::AbsoluteLogOdds& a = values[routing.order()[j]];
+          detail::VoxelBlock* b = nullptr;
+          detail::Voxel& v = acc.voxel(a.key, b);
+          if (detail::set_voxel_log_odds(*b, v, a.log_odds)) ++total_known;
+        }
+      }
+    });
+    skipped += skip;
+  }
+
+  // ---- reading the whole map ----
+
+  // Calls fn(key, const Voxel&) for every known voxel of every tile, tiles in key order: resident
+  // ones from RAM, the others read one at a time and dropped (the cache is left as it is).
+  template <class Fn>
+  void for_each_known(Fn&& fn) {
+    std::unique_ptr<detail::DenseBlock> scratch_block;
+    std::vector<std::uint8_t> bytes;
+    for (const VoxelKey& k : all_tiles()) {
+      if (const detail::Tile* t = cache.find(k)) {
+        detail::for_each_known(t->grid, fn);
+        continue;
+      }
+      std::string where;
+      const detail::TileHeader h = store.read(k, bytes, where);
+      const std::size_t expected = store.find(k)->known;
+      if (h.known_voxels != expected)
+        detail::throw_corrupt(where, "it holds " + std::to_string(h.known_voxels) + " voxels, " +
+                                         std::to_string(expected) +
+                                         " when last written or read (changed by another program?)");
+      if (!scratch_block) scratch_block = std::make_unique<detail::DenseBlock>();
+      detail::decode_tile(bytes, h, tile_voxels, where, *scratch_block, [&fn](const detail::DenseBlock& b) {
+        for (int i = 0; i < detail::kBlockVoxels; ++i) {
+          const detail::Voxel& v = b.voxels[static_cast<std::size_t>(i)];
+          if (v.count != 0) fn(detail::voxel_of(b.key, i), v);
+        }
+      });
+    }
+  }
+
+  // ---- flush and clear ----
+
+  // Writes every tile whose newest state is not in its tile file: dirty resident tiles from RAM,
+  // staged tiles from the staging file. Every tile is attempted; the first error is rethrown at the
+  // end, and a tile that failed keeps its newest state (dirty in RAM, or staged) for a later flush.
+  void flush() {
+    std::exception_ptr first_error;
+    std::vector<VoxelKey> keys;
+    for (const auto& [k, image] : store.images())
+      if (image.staged) keys.push_back(k);
+    for (const auto& t : cache.resident())
+      if (t->dirty && std::find(keys.begin(), keys.end(), t->key) == keys.end()) keys.push_back(t->key);
+    std::sort(keys.begin(), keys.end());
+    std::unique_ptr<detail::DenseBlock> check_block;
+    for (const VoxelKey& k : keys) {
+      try {
+        detail::Tile* t = cache.find(k);
+        if (t != nullptr && t->dirty) {
+          const std::uint64_t known = cache.encode(*t, io_buffer);
+          store.commit(k, io_buffer, static_cast<std::size_t>(known));
+          t->dirty = false;
+        } else {
+          if (!check_block) check_block = std::make_unique<detail::DenseBlock>();
+          store.commit_staged(k, io_buffer, *check_block);
+        }
+      } catch (...) {
+        if (!first_error) first_error = std::current_exception();
+      }
+    }
+    store.finish_commits();
+    if (first_error) std::rethrow_exception(first_error);
+  }
+
+  void clear() {
+    cache.clear();
+    skipped = 0;
+    scratch.release();
+    detail::free_memory(batch);
+    detail::free_memory(io_buffer);
+    try {
+      store.clear();
+    } catch (...) {
+      total_known = store.known();
+      throw;
+    }
+    total_known = store.known();
+  }
+
+  void release_buffers() {
+    scratch.release();
+    detail::free_memory(batch);
+    routing = detail::TileRouting(tile_voxels);
+    detail::free_memory(slot_chunks);
+    detail::free_memory(slot_last_chunk);
+    detail::free_memory(slot_group);
+    detail::free_memory(slot_tile);
+    detail::free_memory(accessors);
+    detail::free_memory(group_chunks);
+    detail::free_memory(io_buffer);
+  }
+
+  static constexpr std::size_t kNoChunk = static_cast<std::size_t>(-1);
+  static constexpr std::size_t kNoGroup = 0;
+
+  double resolution;
+  std::uint32_t tile_voxels;
+  double tile_size;  // effective: tile_voxels * resolution
+  std::size_t total_known = 0;  // of the whole map (before `cache`, which keeps it exact)
+  detail::HitSettings hit_settings;  // (before `cache`, which reads it)
+  detail::MapDirectory dir;
+  detail::TileStore store;
+  detail::TileCache cache;
+  detail::TileRouting routing;
+  detail::Updater updater;
+  std::size_t skipped = 0;
+
+  // Buffers reused between calls.
+  detail::ScanScratch scratch;
+  std::vector<detail::Observation> batch;
+  std::vector<std::vector<std::size_t>> slot_chunks;
+  std::vector<std::size_t> slot_last_chunk;
+  std::vector<std::size_t> slot_group;
+  std::vector<detail::Tile*> slot_tile;
+  std::vector<detail::BlockAccessor> accessors;
+  std::vector<std::size_t> group_chunks;
+  std::vector<std::uint8_t> io_buffer;
+
+  mutable std::mutex mutex;
+};
+
+}  // namespace iwlomap
