@@ -470,6 +470,20 @@ size_t OctreeMapper::prune() {
 
 // ---- registration --------------------------------------------------------------------------
 
+namespace detail {
+bool register_octomap_backend();
+}  // namespace detail
+
+// Linking iwlomap::octomap is enough for make_backend("OctoMap"): every program that links the
+// layer compiles link_reference.cpp, which refers to this function, so the object that defines it
+// (static build) or the library (shared build) is part of the program, and so is the initializer
+// below.
+extern "C" bool iwlomap_octomap_backend_registered() noexcept { return detail::register_octomap_backend(); }
+namespace {
+[[maybe_unused]] const bool kRegisteredAtStartup = detail::register_octomap_backend();
+}  // namespace
+
+// Registers "OctoMap" with make_backend() (idempotent; returns true).
 bool detail::register_octomap_backend() {
   static const bool registered = [] {
     register_backend("OctoMap", [](double resolution, const BackendOptions& options) {

@@ -1,28 +1,53 @@
 # SPDX-License-Identifier: BSD-3-Clause
-# Builds and runs tests/consumer/project against iwlomap, either from an install prefix
-# (MODE=install: installs the build tree into WORK/prefix first) or from the build tree itself.
-# Usage: cmake -DMODE=install|build-tree -DBUILD_DIR=... -DSOURCE=... -DWORK=... -P run_consumer.cmake
+# Builds and runs tests/consumer/project (CONSUMER = core | octomap | filters | viewer) against
+# iwlomap found the documented way:
+#   MODE=install     the build tree BUILD_DIR installed into WORK/prefix first
+#   MODE=build-tree  the build tree itself
+#   MODE=shared      iwlomap's core and OctoMap layer built as shared libraries from SOURCE_ROOT
+#                    into WORK (so also checks their SONAME), then installed
+# FLAGS: extra compile flags of the consumer (e.g. -march=native); DISABLE: packages the
+# consumer's configure must not find (CMAKE_DISABLE_FIND_PACKAGE_<name>), to prove a component
+# needs nothing more.
+# Usage: cmake -DMODE=... -DCONSUMER=... -DBUILD_DIR=... -DSOURCE=... -DSOURCE_ROOT=... -DWORK=...
+#              [-DFLAGS=...] [-DDISABLE=PCL;VTK;octomap] -P run_consumer.cmake
 file(REMOVE_RECURSE "${WORK}")
-if(MODE STREQUAL "install")
-  execute_process(COMMAND ${CMAKE_COMMAND} --install "${BUILD_DIR}" --prefix "${WORK}/prefix"
-                  RESULT_VARIABLE rc OUTPUT_QUIET)
+function(run)
+  execute_process(COMMAND ${ARGN} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE out)
   if(rc)
-    message(FATAL_ERROR "install failed: ${rc}")
+    message(FATAL_ERROR "failed (${rc}): ${ARGN}\n${out}")
   endif()
+  set(last_output "${out}" PARENT_SCOPE)
+endfunction()
+
+if(MODE STREQUAL "shared")
+  run(${CMAKE_COMMAND} -S "${SOURCE_ROOT}" -B "${WORK}/iwlomap" -DCMAKE_BUILD_TYPE=Release -DBUILD_SHARED_LIBS=ON
+      -DIWLOMAP_BUILD_TESTS=OFF -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_WITH_VIEWER=OFF -DIWLOMAP_WITH_FILTERS=OFF)
+  run(${CMAKE_COMMAND} --build "${WORK}/iwlomap" -j 2)
+  run(${CMAKE_COMMAND} --install "${WORK}/iwlomap" --prefix "${WORK}/prefix")
+  foreach(lib core octomap)
+    file(GLOB so "${WORK}/prefix/lib*/libiwlomap_${lib}.so.*.*.*")
+    if(NOT so)
+      message(FATAL_ERROR "no versioned libiwlomap_${lib}.so.X.Y.Z installed")
+    endif()
+    run(readelf -d ${so})
+    if(NOT last_output MATCHES "SONAME\\)[^\n]*\\[libiwlomap_${lib}\\.so\\.[0-9]+\\.[0-9]+\\]")
+      message(FATAL_ERROR "libiwlomap_${lib} has no versioned SONAME:\n${last_output}")
+    endif()
+  endforeach()
+  set(locate "-DCMAKE_PREFIX_PATH=${WORK}/prefix")
+elseif(MODE STREQUAL "install")
+  run(${CMAKE_COMMAND} --install "${BUILD_DIR}" --prefix "${WORK}/prefix")
   set(locate "-DCMAKE_PREFIX_PATH=${WORK}/prefix")
 else()
   set(locate "-Diwlomap_DIR=${BUILD_DIR}")
 endif()
-execute_process(COMMAND ${CMAKE_COMMAND} -S "${SOURCE}" -B "${WORK}/build" ${locate} -DCMAKE_BUILD_TYPE=Release
-                RESULT_VARIABLE rc)
-if(rc)
-  message(FATAL_ERROR "configuring the consumer failed: ${rc}")
-endif()
-execute_process(COMMAND ${CMAKE_COMMAND} --build "${WORK}/build" RESULT_VARIABLE rc)
-if(rc)
-  message(FATAL_ERROR "building the consumer failed: ${rc}")
-endif()
-execute_process(COMMAND "${WORK}/build/consumer" RESULT_VARIABLE rc)
-if(rc)
-  message(FATAL_ERROR "the consumer failed: ${rc}")
-endif()
+
+set(disable)
+foreach(p IN LISTS DISABLE)
+  list(APPEND disable "-DCMAKE_DISABLE_FIND_PACKAGE_${p}=ON")
+endforeach()
+run(${CMAKE_COMMAND} -S "${SOURCE}" -B "${WORK}/build" ${locate} ${disable} -DCMAKE_BUILD_TYPE=Release
+    -DCONSUMER=${CONSUMER} "-DCMAKE_CXX_FLAGS=${FLAGS}" "-DCMAKE_EXE_LINKER_FLAGS=${FLAGS}")
+run(${CMAKE_COMMAND} --build "${WORK}/build")
+run("${WORK}/build/consumer")
+message(STATUS "${last_output}")

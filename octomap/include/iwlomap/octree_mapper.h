@@ -6,7 +6,7 @@
 /// files (library iwlomap::octomap). No OctoMap header is included here: the octree lives behind
 /// a pointer to an implementation, so users of this header need OctoMap only to link.
 ///
-/// Including this header makes make_backend("OctoMap") work: see kOctoMapBackendRegistered.
+/// Linking iwlomap::octomap makes make_backend("OctoMap") work; no header needs to be included.
 
 #include "iwlomap/mapper_backend.h"
 
@@ -180,16 +180,5 @@ void export_octomap(const IMapperBackend& map, const std::string& path);
 /// extension or a resolution mismatch, std::runtime_error naming the path when the file is
 /// missing, unreadable, not an OctoMap file or corrupt; the map is unchanged then.
 void import_octomap(const std::string& path, IMapperBackend& map);
-
-namespace detail {
-/// Registers "OctoMap" with make_backend() (idempotent; returns true). Defined in the library.
-bool register_octomap_backend();
-}  // namespace detail
-
-/// Registration of "OctoMap" with make_backend(): initialising this variable, in every program
-/// that includes this header, registers the backend before main() and makes the linker keep the
-/// library's object that defines it (a static library would otherwise drop it). Programs that
-/// use make_backend("OctoMap") only by name include this header once anywhere.
-inline const bool kOctoMapBackendRegistered = detail::register_octomap_backend();
 
 }  // namespace iwlomap
