@@ -39,6 +39,9 @@ class Args {
   std::vector<std::string> positional_;
 };
 
+/// The shortest decimal form of \p value that reads back as the same double ("0.2").
+[[nodiscard]] std::string shortest(double value);
+
 /// Lower-case file extension with the dot (".pcd"), or "" when there is none.
 [[nodiscard]] std::string extension(const std::string& path);
 

@@ -10,7 +10,7 @@
 #include <pcl/io/ply_io.h>
 
 #include <algorithm>
-#include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <stdexcept>
 
@@ -20,9 +20,9 @@ namespace {
 bool has_field(const pcl::PCLPointCloud2& c, const std::string& name) {
   return std::any_of(c.fields.begin(), c.fields.end(), [&](const pcl::PCLPointField& f) { return f.name == name; });
 }
-void write_empty(const std::string& path, const std::string& ext) {
+void write_empty(const std::string& path, const std::string& ext, const std::string& shown_as) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  if (!out) throw std::runtime_error("cannot write '" + path + "'");
+  if (!out) throw std::runtime_error("cannot write '" + shown_as + "'");
   if (ext == ".pcd")
     out << "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\n"
            "TYPE F F F F\nCOUNT 1 1 1 1\nWIDTH 0\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA ascii\n";
@@ -30,7 +30,7 @@ void write_empty(const std::string& path, const std::string& ext) {
     out << "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\n"
            "property float intensity\nend_header\n";
   out.close();
-  if (!out) throw std::runtime_error("cannot write '" + path + "'");
+  if (!out) throw std::runtime_error("cannot write '" + shown_as + "'");
 }
 
 }  // namespace
@@ -72,26 +72,21 @@ LoadedCloud load_cloud(const std::string& path, float missing_intensity) {
   return out;
 }
 
-void save_cloud(const std::string& path, const pcl::PointCloud<pcl::PointXYZI>& cloud) {
-  const std::string ext = extension(path);
+void save_cloud(const std::string& file, const pcl::PointCloud<pcl::PointXYZI>& cloud, const std::string& shown_as) {
+  const std::string ext = extension(file);
   if (ext != ".pcd" && ext != ".ply")
-    throw std::runtime_error("'" + path + "': unsupported output format (use .pcd or .ply)");
-  // Written beside the target and renamed over it, so a failed write never leaves a torn file.
-  const std::string partial = path + ".partial";
+    throw std::runtime_error("'" + shown_as + "': unsupported output format (use .pcd or .ply)");
   if (cloud.empty()) {
     // PCL's writers refuse a cloud without points; an empty map is still a valid result.
-    write_empty(partial, ext);
-  } else {
-    const int rc = ext == ".pcd" ? pcl::io::savePCDFileBinary(partial, cloud) : pcl::io::savePLYFileBinary(partial, cloud);
-    if (rc < 0) {
-      std::remove(partial.c_str());
-      throw std::runtime_error("cannot write '" + path + "'");
-    }
+    write_empty(file, ext, shown_as);
+    return;
   }
-  if (std::rename(partial.c_str(), path.c_str()) != 0) {
-    std::remove(partial.c_str());
-    throw std::runtime_error("cannot write '" + path + "'");
-  }
+  const int rc = ext == ".pcd" ? pcl::io::savePCDFileBinary(file, cloud) : pcl::io::savePLYFileBinary(file, cloud);
+  // PCL's PLY writer does not check its stream: a short file (full disk) is caught by its size.
+  std::error_code ec;
+  const auto size = std::filesystem::file_size(file, ec);
+  if (rc < 0 || ec || size < cloud.size() * 3 * sizeof(float))
+    throw std::runtime_error("cannot write '" + shown_as + "'" + (ec ? ": " + ec.message() : std::string()));
 }
 
 }  // namespace iwlomap::tool

@@ -20,7 +20,8 @@ struct LoadedCloud {
 /// Throws std::runtime_error naming the file when it is missing, unreadable or has no x/y/z.
 [[nodiscard]] LoadedCloud load_cloud(const std::string& path, float missing_intensity);
 
-/// Writes a cloud as binary .pcd or .ply by the extension; throws std::runtime_error on failure.
-void save_cloud(const std::string& path, const pcl::PointCloud<pcl::PointXYZI>& cloud);
+/// Writes a cloud as binary .pcd or .ply by the extension of \p file (an OutputFiles temporary);
+/// throws std::runtime_error naming \p shown_as on failure.
+void save_cloud(const std::string& file, const pcl::PointCloud<pcl::PointXYZI>& cloud, const std::string& shown_as);
 
 }  // namespace iwlomap::tool

@@ -5,6 +5,7 @@
 #include "cloud_io.h"
 #include "commands.h"
 #include "map_open.h"
+#include "output_files.h"
 
 #include <iwlomap/filters/cloud_conversions.h>
 
@@ -42,9 +43,9 @@ int run_export(const std::vector<std::string>& argv) {
   if (!is_map_path(input)) throw UsageError("'" + input + "' is not a tile directory, .bt or .ot file");
   const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
   if (!output) throw UsageError("no output file (-o OUT.pcd|.ply|.bt|.ot)");
+  OutputFiles files;
+  files.add("-o", *output, {".pcd", ".ply", ".bt", ".ot"});
   const std::string ext = extension(*output);
-  if (ext != ".pcd" && ext != ".ply" && ext != ".bt" && ext != ".ot")
-    throw UsageError("the output must end in .pcd, .ply, .bt or .ot, got '" + *output + "'");
   const double threshold = args.number("--threshold", 0.7);
   if (!(threshold > 0.0 && threshold < 1.0)) throw UsageError("--threshold must be in (0, 1)");
   const long cache = args.integer("--cache-tiles", 4);
@@ -56,15 +57,16 @@ int run_export(const std::vector<std::string>& argv) {
     IwloParams p = map->get_params();
     p.occupied_threshold = threshold;  // .bt stores occupied / free by this threshold
     map->set_params(p);
-    export_octomap(*map, *output);
+    files.write(*output, [&](const std::string& file) { export_octomap(*map, file); });
 #else
     throw std::runtime_error("writing OctoMap files needs the OctoMap layer (build with -DIWLOMAP_WITH_OCTOMAP=ON)");
 #endif
   } else {
     pcl::PointCloud<pcl::PointXYZI> occupied;
     occupied_to_cloud(*map, threshold, occupied);
-    save_cloud(*output, occupied);
+    save_cloud(files.temporary(*output), occupied, *output);
   }
+  files.commit();
   std::cout << "wrote " << *output << " from " << input << " (" << map->get_backend_type() << " map, "
             << map->get_num_nodes() << " known voxels at " << map->get_resolution() << " m)\n";
   return 0;

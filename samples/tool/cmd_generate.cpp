@@ -4,6 +4,7 @@
 #include "args.h"
 #include "cloud_io.h"
 #include "commands.h"
+#include "output_files.h"
 
 #include <iwlomap/synthetic_scan.h>
 
@@ -36,6 +37,8 @@ int run_generate(const std::vector<std::string>& argv) {
   const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
   if (!output) throw UsageError("no output file (-o OUT.pcd)");
   if (!args.positional().empty()) throw UsageError("unexpected argument '" + args.positional().front() + "'");
+  OutputFiles files;
+  files.add("-o", *output, {".pcd", ".ply"});
   SyntheticScanOptions opt;
   opt.rings = static_cast<int>(args.integer("--rings", opt.rings));
   opt.columns = static_cast<int>(args.integer("--columns", opt.columns));
@@ -60,7 +63,8 @@ int run_generate(const std::vector<std::string>& argv) {
   cloud.is_dense = true;
   cloud.sensor_origin_ = Eigen::Vector4f(static_cast<float>(scan.origin.x()), static_cast<float>(scan.origin.y()),
                                          static_cast<float>(scan.origin.z()), 0.0f);
-  save_cloud(*output, cloud);
+  save_cloud(files.temporary(*output), cloud, *output);
+  files.commit();
   std::cout << "wrote " << *output << ": " << cloud.size() << " points, sensor at (" << scan.origin.transpose()
             << ")\n";
   return 0;

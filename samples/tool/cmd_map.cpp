@@ -12,6 +12,7 @@
 #include <iwlomap/filters/cloud_conversions.h>
 
 #include <chrono>
+#include <filesystem>
 #include <iostream>
 #include <optional>
 
@@ -52,13 +53,14 @@ int run_map(const std::vector<std::string>& argv) {
   if (inputs.empty()) throw UsageError("no input file");
   const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
   const bool quiet = args.flag("-q") || args.flag("--quiet");
-  if (output && extension(*output) != ".pcd" && extension(*output) != ".ply")
-    throw UsageError("the output must end in .pcd or .ply, got '" + *output + "'");
+  // Every output is checked before any work and written only when all of them can be.
+  OutputFiles files;
+  if (output) files.add("-o", *output, {".pcd", ".ply"});
+  const MapOutputs extra = map_outputs_from(args, files);
 
   const MapSetup setup = map_setup_from(args);
   const bool mean_positions = args.flag("--mean-positions");
   if (mean_positions) setup.map->set_hit_accumulation(true);
-  const MapOutputs extra = map_outputs_from(args);
   const bool async = args.flag("--async");
   if (async && !setup.ray_casting) throw UsageError("--async needs ray casting (drop --no-rays)");
   const auto started = std::chrono::steady_clock::now();
@@ -68,7 +70,8 @@ int run_map(const std::vector<std::string>& argv) {
     std::optional<AsyncMapper> background;
     if (async) background.emplace(setup.map, ExecutionMode::kParallel, 2);
     for (std::size_t i = 0; i < inputs.size(); ++i) {
-      progress.update(i, inputs[i]);
+      const std::string name = std::filesystem::path(inputs[i]).filename().string();
+      progress.update(i, name);
       const LoadedCloud in = load_cloud(inputs[i], static_cast<float>(setup.params.intensity_max));
       points += in.cloud->size();
       if (background) {
@@ -80,14 +83,15 @@ int run_map(const std::vector<std::string>& argv) {
       } else {
         integrate_cloud(*setup.map, *in.cloud, nullptr, setup.ray_casting, setup.max_range);
       }
-      progress.update(i + 1, inputs[i]);
+      progress.update(i + 1, name);
     }
     if (background) background->sync();
   }
   pcl::PointCloud<pcl::PointXYZI> occupied;
   occupied_to_cloud(*setup.map, setup.params.occupied_threshold, occupied, mean_positions);
-  if (output) save_cloud(*output, occupied);
-  write_map_outputs(extra, *setup.map, setup.params.occupied_threshold);
+  if (output) save_cloud(files.temporary(*output), occupied, *output);
+  write_map_outputs(extra, files, *setup.map, setup.params.occupied_threshold);
+  files.commit();
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
   if (!quiet) {
     std::cout << "mapped " << inputs.size() << " file(s), " << points << " points ("
@@ -95,8 +99,7 @@ int run_map(const std::vector<std::string>& argv) {
               << setup.map->get_backend_type() << " backend: " << setup.map->get_num_nodes() << " known voxels, "
               << occupied.size() << " occupied (p > " << setup.params.occupied_threshold << ") in " << seconds
               << " s\n";
-    for (const auto& written : {output, extra.octomap, extra.snapshot})
-      if (written) std::cout << "wrote " << *written << "\n";
+    for (const std::string& written : files.paths()) std::cout << "wrote " << written << "\n";
   }
   return 0;
 }

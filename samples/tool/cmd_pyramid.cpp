@@ -226,7 +226,7 @@ std::unique_ptr<IMapperBackend> load_voxel_cloud(const std::string& path, double
     const auto& p = cloud[i];
     const auto row = static_cast<Eigen::Index>(i);
     if (std::isfinite(p.intensity) && (p.intensity < 0.0f || p.intensity > 1.0f))
-      throw std::runtime_error("'" + path + "': intensity " + std::to_string(p.intensity) + " of point " +
+      throw std::runtime_error("'" + path + "': intensity " + shortest(p.intensity) + " of point " +
                                std::to_string(i) +
                                " is not a probability; the input must be a voxel cloud as 'iwlomap map' writes it "
                                "(map a raw scan first)");
@@ -321,7 +321,7 @@ int run_pyramid(const std::vector<std::string>& argv) {
   if (!quiet) {
     const GridFrame& f = stack.frame();
     std::cout << input << ": " << map->get_num_nodes() << " known voxels at " << r << " m; "
-              << (slice ? "slice at z = " + std::to_string(*slice) + " m" : std::string("column maximum"))
+              << (slice ? "slice at z = " + shortest(*slice) + " m" : std::string("column maximum"))
               << "; base grid " << base.size().x() << " x " << base.size().y() << " cells, cell (0, 0) = voxel ("
               << f.origin.x << ", " << f.origin.y << "), x from " << f.origin.x * r << " m, y from " << f.origin.y * r
               << " m\n";

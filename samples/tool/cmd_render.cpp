@@ -10,6 +10,7 @@
 #ifdef IWLOMAP_HAVE_VIEWER
 #include "cloud_io.h"
 #include "map_open.h"
+#include "output_files.h"
 
 #include <iwlomap/viewer/pcl_adapter.h>
 #include <iwlomap/viewer/snapshot_renderer.h>
@@ -217,11 +218,12 @@ int run_render(const std::vector<std::string>& argv) {
                      input + "'");
   const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
   if (!output) throw UsageError("no output file (-o OUT.png)");
-  if (extension(*output) != ".png") throw UsageError("the output must end in .png, got '" + *output + "'");
+  OutputFiles files;
+  files.add("-o", *output, {".png"});
   const viewer::SnapshotOptions options = options_from(args);
   const auto resolution_option = args.number("--resolution");
   if (resolution_option && !(*resolution_option > 0.0))
-    throw UsageError("--resolution must be > 0, got " + std::to_string(*resolution_option));
+    throw UsageError("--resolution must be > 0, got " + shortest(*resolution_option));
 
   // Fail before reading a large file when the picture cannot be drawn anyway.
   viewer::SnapshotRenderer::check_display();
@@ -248,7 +250,8 @@ int run_render(const std::vector<std::string>& argv) {
       (voxels.col(3).minCoeff() < 0.0 || voxels.col(3).maxCoeff() > 1.0))
     std::cerr << "iwlomap render: note: intensities of '" << input
               << "' are not all in [0, 1], so they are not occupancy probabilities; colours are clamped\n";
-  viewer::SnapshotRenderer::render_png(voxels, resolution, options, *output);
+  files.write(*output, [&](const std::string& file) { viewer::SnapshotRenderer::render_png(voxels, resolution, options, file); });
+  files.commit();
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
   std::cout << "wrote " << *output << ": " << voxels.rows() << " voxels of " << resolution << " m"
             << (stored_map ? "" : resolution_option ? "" : " (inferred)") << ", " << options.width << " x " << options.height << " in "

@@ -5,6 +5,8 @@
 #include "cloud_io.h"
 #include "commands.h"
 #include "map_options.h"
+#include "map_outputs.h"
+#include "output_files.h"
 #include "progress.h"
 
 #include <iwlomap/filters/cloud_conversions.h>
@@ -94,7 +96,7 @@ std::vector<Eigen::Isometry3d> read_poses(const std::string& path) {
       const Eigen::Quaterniond q(v[3], v[4], v[5], v[6]);
       if (std::abs(q.norm() - 1.0) > 1e-3)
         throw std::runtime_error(path + ":" + std::to_string(number) + ": the quaternion's norm is " +
-                                 std::to_string(q.norm()) + ", not 1");
+                                 shortest(q.norm()) + ", not 1");
       pose.linear() = q.normalized().toRotationMatrix();
       pose.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
     } else if (v.size() == 12) {
@@ -117,22 +119,23 @@ std::vector<Eigen::Isometry3d> read_poses(const std::string& path) {
 
 int run_sonar(const std::vector<std::string>& argv) {
   auto value_opts = map_value_options();
-  value_opts.insert({"-o", "--output", "--poses", "--aperture", "--min-range", "--stride", "--elevation-spacing",
+  value_opts.insert({"-o", "--output", "--octomap", "--snapshot", "--poses", "--aperture", "--min-range", "--stride", "--elevation-spacing",
                      "--band", "--no-return"});
   auto flag_opts = map_flag_options();
   flag_opts.erase("--no-rays");
   flag_opts.insert({"-h", "--help", "-q", "--quiet"});
   const Args args(argv, value_opts, flag_opts);
   if (args.flag("-h") || args.flag("--help")) {
-    std::cout << kHelp << map_options_help();
+    std::cout << kHelp << map_outputs_help() << map_options_help();
     return 0;
   }
   const auto& inputs = args.positional();
   if (inputs.empty()) throw UsageError("no input file (PINGS.raw)");
   const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
   if (!output) throw UsageError("no output file (-o OUT.pcd)");
-  if (extension(*output) != ".pcd" && extension(*output) != ".ply")
-    throw UsageError("the output must end in .pcd or .ply, got '" + *output + "'");
+  OutputFiles files;
+  files.add("-o", *output, {".pcd", ".ply"});
+  const MapOutputs extra = map_outputs_from(args, files);
   const bool quiet = args.flag("-q") || args.flag("--quiet");
 
   const MapSetup setup = map_setup_from(args);
@@ -150,7 +153,7 @@ int run_sonar(const std::vector<std::string>& argv) {
     throw UsageError("--no-return must be free or nothing, got '" + no_return + "'");
   const double aperture_deg = args.number("--aperture", 20.0);
   if (!(aperture_deg >= 0.0 && aperture_deg < 180.0))
-    throw UsageError("--aperture must be in [0, 180) degrees, got " + std::to_string(aperture_deg));
+    throw UsageError("--aperture must be in [0, 180) degrees, got " + shortest(aperture_deg));
   const double min_range = args.number("--min-range", 0.0);
   const std::optional<double> max_range = args.number("--max-range");
   std::optional<SonarImageProjector> projector;
@@ -190,15 +193,17 @@ int run_sonar(const std::vector<std::string>& argv) {
   }
   pcl::PointCloud<pcl::PointXYZI> occupied;
   occupied_to_cloud(*setup.map, setup.params.occupied_threshold, occupied);
-  save_cloud(*output, occupied);
+  save_cloud(files.temporary(*output), occupied, *output);
+  write_map_outputs(extra, files, *setup.map, setup.params.occupied_threshold);
+  files.commit();
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
   if (!quiet) {
     std::cout << "mapped " << pings.size() << " ping(s) from " << inputs.size() << " file(s): " << with_return << " of "
               << beams << " beams with an echo, " << observations << " voxel observations at "
               << setup.map->get_resolution() << " m, " << setup.map->get_backend_type()
               << " backend: " << setup.map->get_num_nodes() << " known voxels, " << occupied.size()
-              << " occupied (p > " << setup.params.occupied_threshold << ") in " << seconds << " s\n"
-              << "wrote " << *output << "\n";
+              << " occupied (p > " << setup.params.occupied_threshold << ") in " << seconds << " s\n";
+    for (const std::string& written : files.paths()) std::cout << "wrote " << written << "\n";
   }
   return 0;
 }

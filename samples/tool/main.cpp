@@ -6,6 +6,7 @@
 #include "cloud_io.h"
 #include "commands.h"
 
+#include <iwlomap/version.h>
 #include <pcl/console/print.h>
 
 #include <iostream>
@@ -27,15 +28,17 @@ commands:
   sonar      map imaging-sonar pings (Oculus .raw) into one map, write the occupied voxels
   pyramid    write a map's multi-resolution max grids (Cartographer's precomputation grids) as PNGs
 
-Run 'iwlomap <command> --help' for the options of a command.
+Run 'iwlomap <command> --help' for the options of a command, 'iwlomap --version' for the version
+and the layers of this build.
 )";
 
 }  // namespace
 
 int main(int argc, char** argv) {
   using namespace iwlomap::tool;
-  // The tool reports problems in its own words; PCL's warnings would only repeat them.
-  pcl::console::setVerbosityLevel(pcl::console::L_ERROR);
+  // The tool reports every failure in one line of its own that names the file; PCL's console
+  // messages (warnings and errors alike) would only add lines that repeat it without the path.
+  pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS);
   const std::vector<std::string> args(argv + 1, argv + argc);
   if (args.empty()) {
     std::cerr << kUsage;
@@ -46,6 +49,17 @@ int main(int argc, char** argv) {
   try {
     if (command == "-h" || command == "--help" || command == "help") {
       std::cout << kUsage;
+      return 0;
+    }
+    if (command == "--version" || command == "version") {
+      std::cout << "iwlomap " << iwlomap::version() << " (layers: core, filters"
+#ifdef IWLOMAP_HAVE_OCTOMAP
+                << ", octomap"
+#endif
+#ifdef IWLOMAP_HAVE_VIEWER
+                << ", viewer"
+#endif
+                << ")\n";
       return 0;
     }
     if (command == "map") return run_map(rest);

@@ -1,10 +1,6 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "map_options.h"
 
-#ifdef IWLOMAP_HAVE_OCTOMAP
-#include <iwlomap/octree_mapper.h>  // makes "OctoMap" available to make_backend()
-#endif
-
 #include <iwlomap/outofcore_tile_mapper.h>
 
 #include <algorithm>
@@ -24,19 +20,15 @@ std::set<std::string> map_flag_options() { return {"--no-rays", "--no-adaptive"}
 
 std::string map_options_help() {
   const IwloParams d;
-  const auto num = [](double v) {
-    std::string s = std::to_string(v);
-    s.erase(s.find_last_not_of('0') + 1);
-    if (!s.empty() && s.back() == '.') s.pop_back();
-    return s;
-  };
+  const auto num = [](double v) { return shortest(v); };
   return std::string(R"(
 map:
   --resolution M            voxel edge in metres (default 0.05)
   --backend ram|disk|octomap  map storage (default ram)
   --tiles DIR               map directory of the disk backend; an existing map there is continued
                             (with its stored resolution and tile size unless given)
-  --tile-size M             disk backend: tile edge in metres, a multiple of 8 voxels (default 10)
+  --tile-size M             disk backend: tile edge in metres, rounded to whole blocks of 8 voxels
+                            (default 10; 'iwlomap info DIR' prints the size in use)
   --cache-tiles N           disk backend: tiles kept in RAM (default 16)
   --max-range M             clip rays longer than M metres; those points give no hit (default: none)
   --no-rays                 no ray casting: every point is one observation, occupied iff its

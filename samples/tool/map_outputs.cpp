@@ -22,19 +22,18 @@ const char* map_outputs_help() {
 )";
 }
 
-MapOutputs map_outputs_from(const Args& args) {
+MapOutputs map_outputs_from(const Args& args, OutputFiles& files) {
   MapOutputs out;
   out.octomap = args.value("--octomap");
   out.snapshot = args.value("--snapshot");
   if (out.octomap) {
-    const std::string ext = extension(*out.octomap);
-    if (ext != ".bt" && ext != ".ot") throw UsageError("--octomap must end in .bt or .ot, got '" + *out.octomap + "'");
+    files.add("--octomap", *out.octomap, {".bt", ".ot"});
 #ifndef IWLOMAP_HAVE_OCTOMAP
     throw std::runtime_error("--octomap: this build has no OctoMap layer (configure with IWLOMAP_WITH_OCTOMAP=ON)");
 #endif
   }
   if (out.snapshot) {
-    if (extension(*out.snapshot) != ".png") throw UsageError("--snapshot must end in .png, got '" + *out.snapshot + "'");
+    files.add("--snapshot", *out.snapshot, {".png"});
 #ifdef IWLOMAP_HAVE_VIEWER
     viewer::SnapshotRenderer::check_display();  // fail now, not after a long mapping run
 #else
@@ -44,19 +43,22 @@ MapOutputs map_outputs_from(const Args& args) {
   return out;
 }
 
-void write_map_outputs(const MapOutputs& outputs, IMapperBackend& map, double min_probability) {
+void write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMapperBackend& map, double min_probability) {
 #ifdef IWLOMAP_HAVE_OCTOMAP
-  if (outputs.octomap) export_octomap(map, *outputs.octomap);
+  if (outputs.octomap) files.write(*outputs.octomap, [&](const std::string& file) { export_octomap(map, file); });
 #endif
 #ifdef IWLOMAP_HAVE_VIEWER
   if (outputs.snapshot) {
     viewer::SnapshotOptions options;
     options.title = "iwlomap: " + std::to_string(map.get_occupied_voxels(min_probability).rows()) +
-                    " occupied voxels at " + std::to_string(map.get_resolution()).substr(0, 5) + " m";
-    viewer::SnapshotRenderer::render_png(map, options, *outputs.snapshot, min_probability);
+                    " occupied voxels at " + shortest(map.get_resolution()) + " m";
+    files.write(*outputs.snapshot, [&](const std::string& file) {
+      viewer::SnapshotRenderer::render_png(map, options, file, min_probability);
+    });
   }
 #endif
   (void)outputs;
+  (void)files;
   (void)map;
   (void)min_probability;
 }

@@ -4,6 +4,8 @@
 // The optional outputs of a mapping command: an OctoMap file (.bt/.ot) and a PNG snapshot. Each
 // needs a layer (OctoMap, VTK) that a build may leave out; then the option fails with a clear error.
 
+#include "output_files.h"
+
 #include <iwlomap/mapper_backend.h>
 
 #include <optional>
@@ -16,13 +18,14 @@ struct MapOutputs {
   std::optional<std::string> snapshot;  ///< .png
 };
 
-/// Reads --octomap and --snapshot and checks, before any work, that they can be written: the
-/// extensions, the layers of this build, and an X display for the snapshot. Throws UsageError or
-/// std::runtime_error.
-[[nodiscard]] MapOutputs map_outputs_from(const class Args& args);
+/// Reads --octomap and --snapshot, adds them to \p files and checks, before any work, that they
+/// can be written: the paths, the layers of this build, and an X display for the snapshot. Throws
+/// UsageError or std::runtime_error.
+[[nodiscard]] MapOutputs map_outputs_from(const class Args& args, OutputFiles& files);
 
-/// Writes the requested outputs of \p map (the snapshot shows voxels with p > \p min_probability).
-void write_map_outputs(const MapOutputs& outputs, IMapperBackend& map, double min_probability);
+/// Writes the requested outputs of \p map into their temporaries in \p files (the snapshot shows
+/// voxels with p > \p min_probability).
+void write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMapperBackend& map, double min_probability);
 
 /// Help lines for --octomap and --snapshot.
 [[nodiscard]] const char* map_outputs_help();

@@ -117,7 +117,7 @@ expect pyramid_tiles_png test -s "$WORK/pyramid_tiles/level_1.png"
 if has_layer viewer && [ -n "${DISPLAY:-}" ]; then
   check render_tiles 0 "$TOOL" render "$WORK/tiles" -o "$WORK/tiles.png"
   expect render_tiles_png test -s "$WORK/tiles.png"
-  expect render_leaves_no_partial test ! -e "$WORK/tiles.png.partial"
+  expect render_leaves_no_temporary bash -c "! ls -A '$WORK' | grep -q '^\.tiles\.iwlomap-'"
   check render_unwritable 1 "$TOOL" render "$WORK/occupied.pcd" -o "/nonexistent-dir/x.png"
 fi
 
@@ -139,7 +139,7 @@ printf '# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 
 check map_empty 0 "$TOOL" map "$WORK/empty.pcd" -o "$WORK/empty_out.pcd"
 check info_empty_output 0 "$TOOL" info "$WORK/empty_out.pcd"
 expect empty_output_has_no_points grep -q ": cloud, 0 points" "$WORK/info_empty_output.out"
-expect no_partial_left test ! -e "$WORK/empty_out.pcd.partial"
+expect no_temporary_left bash -c "! ls -A '$WORK' | grep -q '^\.empty_out\.iwlomap-'"
 
 # Mean hit positions and the multi-resolution max grids (pyramid).
 check map_mean_positions 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --mean-positions -o "$WORK/occupied_mean.pcd"
@@ -183,6 +183,48 @@ check disk_without_tiles 2 "$TOOL" map "$WORK/scan.pcd" --backend disk
 check garbage_input 1 bash -c "echo garbage > '$WORK/garbage.pcd' && '$TOOL' map '$WORK/garbage.pcd'"
 check unwritable_output 1 "$TOOL" map "$WORK/scan.pcd" --resolution 0.5 -o "/nonexistent-dir/x.pcd"
 expect no_output_written test ! -e "$WORK/x.pcd"
+
+# Outputs are checked before any work: no map directory is created, the answer comes at once,
+# in one line naming the path.
+started_ns=$(date +%s%N)
+check unwritable_before_work 1 "$TOOL" map "$WORK/scan.pcd" --backend disk --tiles "$WORK/tiles_never" -o "/nonexistent-dir/y.pcd"
+elapsed_ms=$(( ($(date +%s%N) - started_ns) / 1000000 ))
+expect unwritable_under_a_second test "$elapsed_ms" -lt 1000
+expect unwritable_no_work_done test ! -e "$WORK/tiles_never"
+expect unwritable_one_line one_line unwritable_before_work
+expect unwritable_names_path grep -q "/nonexistent-dir/y.pcd" "$WORK/unwritable_before_work.err"
+mkdir -p "$WORK/a_folder.pcd"
+check output_is_folder 1 "$TOOL" map "$WORK/scan.pcd" -o "$WORK/a_folder.pcd"
+expect output_is_folder_says_so grep -q "is a folder" "$WORK/output_is_folder.err"
+check same_output_twice 2 "$TOOL" map "$WORK/scan.pcd" -o "$WORK/twice.pcd" --snapshot "$WORK/./twice.pcd"
+# All or nothing: when one output fails (here OctoMap cannot hold a voxel 9 km out), none is left.
+printf '# .PCD v0.7\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH 2\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2\nDATA ascii\n1 1 1 200\n9000 0 0 200\n' >"$WORK/far.pcd"
+if has_layer octomap; then
+  rm -f "$WORK"/far_out.* "$WORK"/.far_out.*
+  check far_point_outputs 1 "$TOOL" map "$WORK/far.pcd" --resolution 0.2 --sensor lidar -o "$WORK/far_out.pcd" --octomap "$WORK/far_out.bt"
+  expect far_point_no_cloud_left test ! -e "$WORK/far_out.pcd"
+  expect far_point_no_octomap_left test ! -e "$WORK/far_out.bt"
+  expect far_point_no_temporaries bash -c "! ls -A '$WORK' | grep -q '^\.far_out'"
+  expect far_point_one_line one_line far_point_outputs
+  expect far_point_names_target bash -c "grep -q \"'$WORK/far_out.bt'\" '$WORK/far_point_outputs.err' && ! grep -q iwlomap- '$WORK/far_point_outputs.err'"
+fi
+# A truncated file fails in one line of the tool's own (no reader chatter).
+head -c 2000 "$WORK/scan.pcd" >"$WORK/truncated.pcd"
+check truncated_input 1 "$TOOL" map "$WORK/truncated.pcd" -o "$WORK/trunc_out.pcd"
+expect truncated_input_one_line one_line truncated_input
+expect truncated_input_names_file grep -q "truncated.pcd" "$WORK/truncated_input.err"
+expect truncated_no_output test ! -e "$WORK/trunc_out.pcd"
+check version 0 "$TOOL" --version
+expect version_line grep -Eq '^iwlomap [0-9]+[.][0-9]+[.][0-9]+ [(]layers: core' "$WORK/version.out"
+# The progress bar in an 80-column terminal: drawn, and no line of it reaches the last column
+# (which would wrap and scroll), even with a file name longer than the terminal.
+long_name="$WORK/a_scan_file_with_a_rather_long_name_that_cannot_fit_beside_the_progress_bar.pcd"
+cp "$WORK/scan.pcd" "$long_name"
+check progress_pty 0 script -qec "stty cols 80 rows 24; '$TOOL' map '$long_name' '$long_name' --resolution 0.2 --sensor lidar" /dev/null
+expect progress_drawn grep -aq "mapping \[" "$WORK/progress_pty.out"
+expect progress_fits_80_columns bash -c "tr '\r' '\n' <'$WORK/progress_pty.out' | sed 's/\x1b\[K//g' | grep -a 'mapping \[' | awk 'length(\$0) > 79 { bad = 1 } END { exit bad }'"
+check progress_not_in_pipe 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar
+expect progress_not_in_pipe_quiet bash -c "! grep -q 'mapping \[' '$WORK/progress_not_in_pipe.err'"
 
 echo "tool: $passed passed, $failed failed"
 echo "$passed passed, $failed failed"

@@ -1,0 +1,82 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#include "output_files.h"
+
+#include "args.h"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <stdexcept>
+
+namespace iwlomap::tool {
+
+namespace fs = std::filesystem;
+
+OutputFiles::~OutputFiles() {
+  if (committed_) return;
+  for (const std::string& t : temporaries_) std::remove(t.c_str());
+}
+
+void OutputFiles::add(const std::string& option, const std::string& path, std::initializer_list<const char*> extensions) {
+  const std::string ext = extension(path);
+  if (std::none_of(extensions.begin(), extensions.end(), [&](const char* e) { return ext == e; })) {
+    std::string known;
+    for (const char* e : extensions) known += (known.empty() ? "" : ", ") + std::string(e);
+    throw UsageError(option + " must end in " + known + ", got '" + path + "'");
+  }
+  const fs::path target(path);
+  const fs::path folder = target.has_parent_path() ? target.parent_path() : fs::path(".");
+  std::error_code ec;
+  if (!fs::is_directory(folder, ec))
+    throw std::runtime_error("cannot write '" + path + "': the folder '" + folder.string() + "' does not exist");
+  if (::access(folder.c_str(), W_OK | X_OK) != 0)
+    throw std::runtime_error("cannot write '" + path + "': the folder '" + folder.string() + "' is not writable (" +
+                             std::strerror(errno) + ")");
+  if (fs::is_directory(target, ec)) throw std::runtime_error("cannot write '" + path + "': it is a folder");
+  if (fs::exists(target, ec) && ::access(path.c_str(), W_OK) != 0)
+    throw std::runtime_error("cannot write '" + path + "': " + std::strerror(errno));
+  for (const std::string& other : targets_)
+    if (fs::weakly_canonical(other, ec) == fs::weakly_canonical(target, ec))
+      throw UsageError("'" + path + "' is given as two outputs");
+  targets_.push_back(path);
+  // Hidden, in the target's folder (so the rename stays on one file system), unique per process.
+  const std::string name = "." + target.stem().string() + ".iwlomap-" + std::to_string(::getpid()) + "-" +
+                           std::to_string(targets_.size()) + ext;
+  temporaries_.push_back((folder / name).string());
+}
+
+std::string OutputFiles::temporary(const std::string& path) const {
+  const auto it = std::find(targets_.begin(), targets_.end(), path);
+  if (it == targets_.end()) throw std::logic_error("OutputFiles: '" + path + "' was not added");
+  return temporaries_[static_cast<std::size_t>(it - targets_.begin())];
+}
+
+void OutputFiles::write(const std::string& path, const std::function<void(const std::string& file)>& writer) const {
+  const std::string file = temporary(path);
+  try {
+    writer(file);
+  } catch (const std::exception& e) {
+    std::string message = e.what();
+    for (std::size_t at = message.find(file); at != std::string::npos; at = message.find(file, at + path.size()))
+      message.replace(at, file.size(), path);
+    throw std::runtime_error(message);
+  }
+}
+
+void OutputFiles::commit() {
+  for (std::size_t i = 0; i < targets_.size(); ++i) {
+    std::error_code ec;
+    if (!fs::exists(temporaries_[i], ec)) throw std::runtime_error("'" + targets_[i] + "' was not written");
+  }
+  for (std::size_t i = 0; i < targets_.size(); ++i) {
+    if (std::rename(temporaries_[i].c_str(), targets_[i].c_str()) != 0)
+      throw std::runtime_error("cannot write '" + targets_[i] + "': " + std::strerror(errno));
+  }
+  committed_ = true;
+}
+
+}  // namespace iwlomap::tool

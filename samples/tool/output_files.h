@@ -1,0 +1,53 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+// The files one run of a command writes, handled as a set: every path is checked before any work
+// (a known extension, an existing and writable folder, not a folder itself), each file is written
+// to a temporary in its own folder, and commit() renames the temporaries over the targets only
+// after every writer succeeded. A run that fails (an exception before commit()) removes its
+// temporaries, so it leaves no output at all, neither new nor torn.
+
+#include <functional>
+#include <initializer_list>
+#include <string>
+#include <vector>
+
+namespace iwlomap::tool {
+
+class OutputFiles {
+ public:
+  OutputFiles() = default;
+  OutputFiles(const OutputFiles&) = delete;
+  OutputFiles& operator=(const OutputFiles&) = delete;
+  /// Removes the temporaries of an uncommitted run.
+  ~OutputFiles();
+
+  /// Adds \p path, given by \p option (named in errors), to the set and checks it now. Throws
+  /// UsageError when its extension is not one of \p extensions (lower case, with the dot) or it
+  /// is given twice, and std::runtime_error naming the path when its folder does not exist or is
+  /// not writable or the path is a folder.
+  void add(const std::string& option, const std::string& path, std::initializer_list<const char*> extensions);
+
+  /// The temporary to write \p path into: a hidden file in the same folder with the same
+  /// extension (writers that choose the format by extension keep working). \p path must have
+  /// been added.
+  [[nodiscard]] std::string temporary(const std::string& path) const;
+
+  /// Runs \p writer on the temporary of \p path; an exception it throws is rethrown as
+  /// std::runtime_error with the temporary's name replaced by \p path in its message.
+  void write(const std::string& path, const std::function<void(const std::string& file)>& writer) const;
+
+  /// Renames every temporary that was written over its target. Throws std::runtime_error naming
+  /// the path when a temporary is missing (its writer did not run) or a rename fails; the
+  /// temporaries not yet renamed are removed.
+  void commit();
+
+  [[nodiscard]] const std::vector<std::string>& paths() const { return targets_; }
+
+ private:
+  std::vector<std::string> targets_;
+  std::vector<std::string> temporaries_;
+  bool committed_ = false;
+};
+
+}  // namespace iwlomap::tool
