@@ -24,6 +24,8 @@ XVFB=(xvfb-run -a -s "-screen 0 1280x1024x24 -noreset")
 
 BUILD_DIR=build-test bash scripts/build.sh -DIWLOMAP_BUILD_TESTS=ON -DIWLOMAP_BUILD_BENCHMARKS=ON
 (cd build-test && "${XVFB[@]}" ctest --output-on-failure -j 2)
+echo "== API reference (zero Doxygen warnings) =="
+bash scripts/docs.sh
 
 if [ "$SANITIZE" = 1 ]; then
   echo "== AddressSanitizer + UndefinedBehaviorSanitizer build =="

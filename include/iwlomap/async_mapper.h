@@ -24,6 +24,7 @@ namespace iwlomap {
 class AsyncMapper {
  public:
   /// \param backend the map (not null; throws std::invalid_argument)
+  /// \param mode integrate in the caller's thread (kSequential) or on a worker thread (kParallel)
   /// \param queue_capacity scans that may wait in parallel mode (>= 1)
   /// \param policy what integrate() does when the queue is full
   AsyncMapper(std::shared_ptr<IMapperBackend> backend, ExecutionMode mode, std::size_t queue_capacity = 4,

@@ -54,7 +54,11 @@ class BackgroundJob {
  public:
   using Work = std::function<Output(Input&&, Context&)>;
 
+  /// \param mode run each job in submit() (kSequential) or on a worker thread (kParallel)
+  /// \param work the job: turns one input into one output, with the context at hand (not empty)
+  /// \param context the state the jobs share (e.g. the map they write into)
   /// \param capacity queued (not yet started) jobs a parallel job holds, >= 1.
+  /// \param policy what submit() does when the queue is full
   BackgroundJob(ExecutionMode mode, Work work, Context context = Context{}, std::size_t capacity = 4,
                 QueueFullPolicy policy = QueueFullPolicy::kBlock)
       : mode_(mode), work_(std::move(work)), context_(std::move(context)), capacity_(capacity), policy_(policy) {

@@ -66,6 +66,10 @@ inline constexpr std::uint32_t kMaxCount = std::numeric_limits<std::uint16_t>::m
 /// The log-odds increment of one observation (already multiplied by \p weight).
 /// \param log_odds current log-odds of the voxel (before this observation)
 /// \param count    observation count including this observation (>= 1)
+/// \param intensity the echo's intensity in the sensor's raw units
+/// \param occupied_flag true for a hit (the voxel holds a surface), false for free space
+/// \param weight   the observation's weight in [0, 1] (1 = a full observation)
+/// \param p        the IWLO parameters
 [[nodiscard]] double delta(double log_odds, std::uint32_t count, double intensity, bool occupied_flag,
                            double weight, const IwloParams& p);
 

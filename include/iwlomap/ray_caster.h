@@ -26,6 +26,7 @@ namespace iwlomap {
 ///
 /// \param origin, end  metres, map frame; both must be finite and representable as keys at
 ///                     \p resolution (see is_representable()): this function does not check.
+/// \param resolution   voxel edge in metres (> 0).
 /// \param visit        callable as visit(const VoxelKey&).
 template <class Visitor>
 void cast_ray(const Eigen::Vector3d& origin, const Eigen::Vector3d& end, double resolution, Visitor&& visit) {

@@ -177,6 +177,7 @@ struct SonarObservations {
 class SonarImageProjector {
  public:
   /// \param resolution the map's voxel edge in metres (> 0, finite)
+  /// \param params detection and sampling settings (see SonarProjectorParams)
   /// Throws std::invalid_argument naming the value for an invalid resolution or parameter.
   explicit SonarImageProjector(double resolution, const SonarProjectorParams& params = {});
 

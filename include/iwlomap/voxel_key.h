@@ -76,5 +76,7 @@ struct VoxelKeyHash {
 
 }  // namespace iwlomap
 
+/// \cond
 template <>
 struct std::hash<iwlomap::VoxelKey> : iwlomap::VoxelKeyHash {};
+/// \endcond
