@@ -62,13 +62,17 @@ std::optional<double> Args::number(const std::string& name) const {
 
 double Args::number(const std::string& name, double fallback) const { return number(name).value_or(fallback); }
 
-long Args::integer(const std::string& name, long fallback) const {
+long Args::integer(const std::string& name, long fallback, long min, long max) const {
   const auto v = value(name);
   if (!v) return fallback;
-  char* end = nullptr;
-  const long n = std::strtol(v->c_str(), &end, 10);
-  if (v->empty() || end != v->c_str() + v->size())
+  long n = 0;
+  // from_chars: no leading space or '+', no trailing characters, and overflow is reported.
+  const auto [end, ec] = std::from_chars(v->data(), v->data() + v->size(), n);
+  if (v->empty() || ec == std::errc::invalid_argument || end != v->data() + v->size())
     throw UsageError("option " + name + " needs an integer, got '" + *v + "'");
+  if (ec == std::errc::result_out_of_range || n < min || n > max)
+    throw UsageError("option " + name + " must be in [" + std::to_string(min) + ", " + std::to_string(max) + "], got '" +
+                     *v + "'");
   return n;
 }
 

@@ -5,6 +5,7 @@
 // positional arguments. Bad usage raises UsageError, which the tool turns into exit code 2.
 
 #include <cstddef>
+#include <limits>
 #include <map>
 #include <optional>
 #include <set>
@@ -30,7 +31,10 @@ class Args {
   /// The option's value as a finite number, or \p fallback when absent.
   [[nodiscard]] double number(const std::string& name, double fallback) const;
   [[nodiscard]] std::optional<double> number(const std::string& name) const;
-  [[nodiscard]] long integer(const std::string& name, long fallback) const;
+  /// The option's value as an integer in [\p min, \p max] (UsageError otherwise, also for a sign
+  /// or space around it, or a value beyond the range of long), or \p fallback when absent.
+  [[nodiscard]] long integer(const std::string& name, long fallback, long min = std::numeric_limits<int>::min(),
+                             long max = std::numeric_limits<int>::max()) const;
   [[nodiscard]] const std::vector<std::string>& positional() const { return positional_; }
 
  private:

@@ -2,10 +2,10 @@
 #include "cloud_io.h"
 
 #include "args.h"
+#include "cloud_check.h"
 
 #include <Eigen/Geometry>
 #include <pcl/PCLPointCloud2.h>
-#include <pcl/conversions.h>
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
 
@@ -37,36 +37,33 @@ void write_empty(const std::string& path, const std::string& ext, const std::str
 
 LoadedCloud load_cloud(const std::string& path, float missing_intensity) {
   if (!std::ifstream(path).good()) throw std::runtime_error("cannot open '" + path + "'");
+  // PCL's readers trust the header; only a header consistent with itself and the file reaches them.
+  const CloudHeader header = check_cloud_file(path);
   const std::string ext = extension(path);
   pcl::PCLPointCloud2 blob;
   Eigen::Vector4f origin = Eigen::Vector4f::Zero();
   Eigen::Quaternionf orientation = Eigen::Quaternionf::Identity();
-  int rc = -1;
   int version = 0;
-  if (ext == ".pcd") {
-    // PCL 1.13's PCDReader::read crashes on a file without a valid header, so check it first.
-    pcl::PCDReader reader;
+  int rc = 0;
+  if (ext == ".pcd" && header.points == 0) {  // PCL 1.13's PCDReader::read fails on an empty cloud
     int data_type = 0;
     unsigned int data_idx = 0;
-    pcl::PCLPointCloud2 header;
-    if (reader.readHeader(path, header, origin, orientation, version, data_type, data_idx) < 0 ||
-        header.fields.empty())
-      throw std::runtime_error("'" + path + "': not a PCD file (no valid header)");
-    rc = header.width * header.height == 0 ? (blob = header, 0) : reader.read(path, blob, origin, orientation, version);
-  } else if (ext == ".ply") {
-    rc = pcl::PLYReader().read(path, blob, origin, orientation, version);
+    rc = pcl::PCDReader().readHeader(path, blob, origin, orientation, version, data_type, data_idx);
+  } else if (ext == ".pcd") {
+    rc = pcl::PCDReader().read(path, blob, origin, orientation, version);
   } else {
-    throw std::runtime_error("'" + path + "': unsupported cloud format (use .pcd or .ply)");
+    rc = pcl::PLYReader().read(path, blob, origin, orientation, version);
   }
   if (rc < 0) throw std::runtime_error("'" + path + "': not a readable " + ext + " file");
-  if (!has_field(blob, "x") || !has_field(blob, "y") || !has_field(blob, "z"))
-    throw std::runtime_error("'" + path + "': the cloud has no x, y, z fields");
+  if (static_cast<std::uint64_t>(blob.width) * blob.height != header.points)
+    throw std::runtime_error("'" + path + "': " + std::to_string(static_cast<std::uint64_t>(blob.width) * blob.height) +
+                             " points read, the header promises " + std::to_string(header.points) + " (truncated?)");
+  if (!origin.allFinite() || !orientation.coeffs().allFinite())
+    throw std::runtime_error("'" + path + "': the sensor origin or orientation is not finite");
   LoadedCloud out;
   out.cloud.reset(new pcl::PointCloud<pcl::PointXYZI>);
   out.has_intensity = has_field(blob, "intensity");
-  pcl::fromPCLPointCloud2(blob, *out.cloud);
-  if (!out.has_intensity)
-    for (auto& p : *out.cloud) p.intensity = missing_intensity;
+  blob_to_xyzi(blob, missing_intensity, path, *out.cloud);
   out.cloud->sensor_origin_ = origin;
   out.cloud->sensor_orientation_ = orientation;
   return out;

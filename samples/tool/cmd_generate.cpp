@@ -8,7 +8,9 @@
 
 #include <iwlomap/synthetic_scan.h>
 
+#include <cstdint>
 #include <iostream>
+#include <limits>
 
 namespace iwlomap::tool {
 
@@ -43,7 +45,7 @@ int run_generate(const std::vector<std::string>& argv) {
   opt.rings = static_cast<int>(args.integer("--rings", opt.rings));
   opt.columns = static_cast<int>(args.integer("--columns", opt.columns));
   opt.sensor_height = args.number("--height", opt.sensor_height);
-  const long seed = args.integer("--seed", 1);
+  const long seed = args.integer("--seed", 1, 0, std::numeric_limits<std::uint32_t>::max());
   if (seed < 0) throw UsageError("--seed must be >= 0");
   opt.seed = static_cast<std::uint32_t>(seed);
   if (opt.rings < 1 || opt.columns < 1) throw UsageError("--rings and --columns must be >= 1");

@@ -87,11 +87,16 @@ int run_map(const std::vector<std::string>& argv) {
     }
     if (background) background->sync();
   }
+  // A disk map is complete and durable before any output describes it: a failing final flush
+  // fails the run before an output is written.
+  setup.map->flush();
+  show_status(!quiet, "writing the outputs");
   pcl::PointCloud<pcl::PointXYZI> occupied;
   occupied_to_cloud(*setup.map, setup.params.occupied_threshold, occupied, mean_positions);
   if (output) save_cloud(files.temporary(*output), occupied, *output);
   write_map_outputs(extra, files, *setup.map, setup.params.occupied_threshold);
   files.commit();
+  show_status(!quiet, "");
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
   if (!quiet) {
     std::cout << "mapped " << inputs.size() << " file(s), " << points << " points ("

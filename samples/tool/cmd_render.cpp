@@ -34,7 +34,8 @@ const char* kHelp = R"(usage: iwlomap render IN.pcd|IN.ply|IN.bt|IN.ot|TILE_DIR 
 Draws a voxel map into a PNG image, off screen. A .pcd/.ply input holds voxel centres (what
 'iwlomap map' writes) with the occupancy probability as intensity; a stored map (a disk-backend
 tile directory, or a .bt/.ot OctoMap file with the OctoMap layer) is opened at its own resolution
-and its occupied voxels (p > 0.7) are drawn.
+and its occupied voxels (p > 0.7) are drawn. A .pcd/.ply whose points lie on no voxel grid (a
+raw scan) is drawn as points of 2 pixels, unless --resolution is given.
 
 Rendering needs an X display. On a machine without a screen run the command under a virtual one:
   xvfb-run -a -s "-screen 0 1280x1024x24 -noreset" iwlomap render ...
@@ -59,7 +60,7 @@ voxels:
   --fixed-color COLOR         the colour of --color fixed
   --no-color-bar              no colour bar
   --points                    draw points instead of cubes (faster for huge maps)
-  --point-size PX             size of --points in pixels (default 3)
+  --point-size PX             size of --points in pixels (default 3; 2 for a raw scan)
   --resolution M              voxel edge in metres (default: inferred from the voxel centres)
   --background COLOR          background colour (default #f2f3f5)
   --no-lighting               flat colours, exactly as the colour map gives them
@@ -131,6 +132,22 @@ std::optional<double> infer_resolution(const Eigen::MatrixXd& v) {
     best = std::round(*best * scale) / scale;
   }
   return best;
+}
+
+// True when (nearly) every coordinate lies at a voxel centre, (k + 0.5) * resolution, on every
+// axis: the cloud is a voxel cloud as 'iwlomap map' writes it, not a raw scan whose smallest
+// coordinate gap says nothing about a voxel size.
+bool on_voxel_lattice(const Eigen::MatrixXd& v, double resolution) {
+  if (!(resolution >= 1e-3)) return false;
+  std::size_t on = 0, all = 0;
+  for (Eigen::Index i = 0; i < v.rows(); ++i)
+    for (int axis = 0; axis < 3; ++axis) {
+      if (!std::isfinite(v(i, axis))) continue;
+      const double k = v(i, axis) / resolution - 0.5;
+      ++all;
+      if (std::abs(k - std::round(k)) < 1e-3) ++on;
+    }
+  return all > 0 && static_cast<double>(on) >= 0.99 * static_cast<double>(all);
 }
 
 viewer::SnapshotOptions options_from(const Args& args) {
@@ -220,7 +237,7 @@ int run_render(const std::vector<std::string>& argv) {
   if (!output) throw UsageError("no output file (-o OUT.png)");
   OutputFiles files;
   files.add("-o", *output, {".png"});
-  const viewer::SnapshotOptions options = options_from(args);
+  viewer::SnapshotOptions options = options_from(args);
   const auto resolution_option = args.number("--resolution");
   if (resolution_option && !(*resolution_option > 0.0))
     throw UsageError("--resolution must be > 0, got " + shortest(*resolution_option));
@@ -231,6 +248,7 @@ int run_render(const std::vector<std::string>& argv) {
   const auto started = std::chrono::steady_clock::now();
   Eigen::MatrixXd voxels;
   double resolution = 0.0;
+  bool raw_points = false;
   if (stored_map) {  // the occupied voxels of a stored map, at its own resolution
     const auto map = open_map(input);
     voxels = map->get_occupied_voxels(map->get_params().occupied_threshold);
@@ -239,12 +257,23 @@ int run_render(const std::vector<std::string>& argv) {
     voxels = viewer::cloud_to_voxels(*load_cloud(input, 1.0f).cloud);
   }
   if (!stored_map) {  // a cloud does not say its voxel size: take the option, or infer it
-    if (resolution_option)
+    const auto inferred = infer_resolution(voxels);
+    if (resolution_option) {
       resolution = *resolution_option;
-    else if (const auto inferred = infer_resolution(voxels))
+    } else if (inferred && on_voxel_lattice(voxels, *inferred)) {
       resolution = *inferred;
-    else
+    } else if (voxels.rows() > 1) {
+      // A raw scan: drawn as points (their size in pixels, not metres), which needs no voxel size;
+      // the resolution then only pads the view's bounding box (1/1000 of its extent).
+      const Eigen::Vector3d extent =
+          voxels.leftCols<3>().colwise().maxCoeff().transpose() - voxels.leftCols<3>().colwise().minCoeff().transpose();
+      resolution = std::max(extent.maxCoeff() / 1000.0, 1e-3);
+      options.shape = viewer::VoxelShape::kPoints;
+      if (!args.has("--point-size")) options.point_size = 2.0;
+      raw_points = true;
+    } else {
       throw UsageError("cannot infer the voxel size of '" + input + "' (fewer than two distinct voxels): give --resolution");
+    }
   }
   if (options.color_by == viewer::ColorBy::kProbability && voxels.rows() > 0 &&
       (voxels.col(3).minCoeff() < 0.0 || voxels.col(3).maxCoeff() > 1.0))
@@ -253,8 +282,11 @@ int run_render(const std::vector<std::string>& argv) {
   files.write(*output, [&](const std::string& file) { viewer::SnapshotRenderer::render_png(voxels, resolution, options, file); });
   files.commit();
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
-  std::cout << "wrote " << *output << ": " << voxels.rows() << " voxels of " << resolution << " m"
-            << (stored_map ? "" : resolution_option ? "" : " (inferred)") << ", " << options.width << " x " << options.height << " in "
+  std::cout << "wrote " << *output << ": "
+            << (raw_points ? std::to_string(voxels.rows()) + " points (not a voxel cloud: drawn as points; --resolution M draws cubes)"
+                           : std::to_string(voxels.rows()) + " voxels of " + shortest(resolution) + " m" +
+                                 (stored_map || resolution_option ? "" : " (inferred)"))
+            << ", " << options.width << " x " << options.height << " in "
             << seconds << " s\n";
   return 0;
 #endif

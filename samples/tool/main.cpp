@@ -5,6 +5,7 @@
 #include "args.h"
 #include "cloud_io.h"
 #include "commands.h"
+#include "progress.h"
 
 #include <iwlomap/version.h>
 #include <pcl/console/print.h>
@@ -75,6 +76,7 @@ int main(int argc, char** argv) {
               << " (see 'iwlomap " << (command.rfind('-', 0) == 0 ? std::string() : command + " ") << "--help')\n";
     return 2;
   } catch (const std::exception& e) {
+    show_status(true, "");  // a status line in progress gives way to the error
     std::cerr << "iwlomap " << command << ": error: " << e.what() << "\n";
     return 1;
   }

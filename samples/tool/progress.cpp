@@ -42,6 +42,15 @@ void Progress::update(std::size_t done, const std::string& note) {
   std::fflush(stderr);
 }
 
+void show_status(bool enabled, const std::string& text) {
+  if (!enabled || isatty(STDERR_FILENO) == 0) return;
+  std::string line = text;
+  const int columns = terminal_columns() - 1;
+  if (static_cast<int>(line.size()) > columns) line.resize(static_cast<std::size_t>(std::max(columns, 0)));
+  std::fprintf(stderr, "\r%s\x1b[K", line.c_str());
+  std::fflush(stderr);
+}
+
 void Progress::finish() {
   if (!active_) return;
   std::fprintf(stderr, "\n");

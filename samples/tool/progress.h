@@ -24,4 +24,9 @@ class Progress {
   bool active_;
 };
 
+/// Shows \p text (cut to the terminal's width) in place on stderr when \p enabled and stderr is a
+/// terminal, e.g. "writing map.ot" during a long export after the bar reached 100 %; an empty
+/// text clears the line.
+void show_status(bool enabled, const std::string& text);
+
 }  // namespace iwlomap::tool

@@ -118,6 +118,12 @@ if has_layer viewer && [ -n "${DISPLAY:-}" ]; then
   check render_tiles 0 "$TOOL" render "$WORK/tiles" -o "$WORK/tiles.png"
   expect render_tiles_png test -s "$WORK/tiles.png"
   expect render_leaves_no_temporary bash -c "! ls -A '$WORK' | grep -q '^\.tiles\.iwlomap-'"
+  # A raw scan (no voxel grid) is drawn as points, and says so.
+  check render_raw_scan 0 "$TOOL" render "$WORK/scan.pcd" -o "$WORK/raw_scan.png"
+  expect render_raw_scan_says_points grep -q "not a voxel cloud: drawn as points" "$WORK/render_raw_scan.out"
+  expect render_raw_scan_png test -s "$WORK/raw_scan.png"
+  check render_voxels_inferred 0 "$TOOL" render "$WORK/occupied.pcd" -o "$WORK/voxels.png"
+  expect render_voxels_inferred_size grep -q "voxels of 0.2 m (inferred)" "$WORK/render_voxels_inferred.out"
   check render_unwritable 1 "$TOOL" render "$WORK/occupied.pcd" -o "/nonexistent-dir/x.png"
 fi
 
@@ -127,6 +133,12 @@ check map_two_scans 0 "$TOOL" map "$WORK/scan.pcd" "$WORK/scan.pcd" --resolution
 expect threads_async_same_map cmp -s "$WORK/occ_t3.pcd" "$WORK/occ_t1.pcd"
 check async_without_rays 2 "$TOOL" map "$WORK/scan.pcd" --no-rays --async
 check negative_threads 2 "$TOOL" map "$WORK/scan.pcd" --threads -1
+# Integer options are parsed strictly: overflow, trailing characters, spaces.
+check threads_overflow 2 "$TOOL" map "$WORK/scan.pcd" --threads 99999999999999999999
+check threads_trailing 2 "$TOOL" map "$WORK/scan.pcd" --threads 2x
+check cache_tiles_space 2 "$TOOL" map "$WORK/scan.pcd" --backend disk --tiles "$WORK/t_space" --cache-tiles " 3"
+check rings_beyond_int 2 "$TOOL" generate -o "$WORK/g.pcd" --rings 4294967297
+expect rings_beyond_int_one_line one_line rings_beyond_int
 
 # The same scan as .ply gives the same map.
 check pcl_pcd2ply_scan 0 pcl_pcd2ply "$WORK/scan.pcd" "$WORK/scan.ply"
@@ -214,6 +226,49 @@ check truncated_input 1 "$TOOL" map "$WORK/truncated.pcd" -o "$WORK/trunc_out.pc
 expect truncated_input_one_line one_line truncated_input
 expect truncated_input_names_file grep -q "truncated.pcd" "$WORK/truncated_input.err"
 expect truncated_no_output test ! -e "$WORK/trunc_out.pcd"
+# Hostile input: every malformed cloud fails with exit 1 and one line naming the file (and what is
+# wrong), within seconds: no crash, hang or huge allocation inside PCL's readers.
+pcd() {  # pcd FILE SIZE TYPE COUNT WIDTH VIEWPOINT DATA [BODY]
+  printf '# .PCD v0.7\nVERSION 0.7\nFIELDS x y z intensity\nSIZE %s\nTYPE %s\nCOUNT %s\nWIDTH %s\nHEIGHT 1\nVIEWPOINT %s\nPOINTS %s\nDATA %s\n' \
+    "$2" "$3" "$4" "$5" "$6" "$5" "$7" >"$WORK/$1"
+  if [ $# -ge 8 ]; then printf '%b' "$8" >>"$WORK/$1"; fi
+}
+hostile() {  # hostile NAME WORD-IN-ERROR: info on $WORK/NAME fails in one line naming it and WORD
+  check "hostile_$1" 1 timeout 20 "$TOOL" info "$WORK/$1"
+  expect "hostile_${1}_one_line" one_line "hostile_$1"
+  expect "hostile_${1}_names_file" grep -q "$1" "$WORK/hostile_$1.err"
+  expect "hostile_${1}_says_$2" grep -q -- "$2" "$WORK/hostile_$1.err"
+}
+F4="F F F F"; V="0 0 0 1 0 0 0"
+pcd count_negative_ascii.pcd "4 4 4 4" "$F4" "-1 1 1 1" 1 "$V" ascii '1 2 3 4\n'
+hostile count_negative_ascii.pcd COUNT
+pcd count_negative_binary.pcd "4 4 4 4" "$F4" "-1 1 1 1" 1 "$V" binary '0123456789abcdef'
+hostile count_negative_binary.pcd COUNT
+pcd size_huge.pcd "4 4 4 4000000000" "$F4" "1 1 1 1" 1 "$V" binary '0123456789abcdef'
+hostile size_huge.pcd SIZE
+pcd size_negative.pcd "-4 4 4 4" "$F4" "1 1 1 1" 1 "$V" binary '0123456789abcdef'
+hostile size_negative.pcd SIZE
+pcd count_2_31.pcd "4 4 4 4" "$F4" "1 1 1 2147483648" 1 "$V" binary '0123456789abcdef'
+hostile count_2_31.pcd COUNT
+pcd body_short.pcd "4 4 4 4" "$F4" "1 1 1 1" 100000 "$V" binary '0123456789abcdef'
+hostile body_short.pcd truncated
+pcd compressed_lies.pcd "4 4 4 4" "$F4" "1 1 1 1" 1000 "$V" binary_compressed '\x10\x00\x00\x00\xff\xff\xff\x7f0123456789abcdef'
+hostile compressed_lies.pcd compressed
+pcd viewpoint_nan.pcd "4 4 4 4" "$F4" "1 1 1 1" 1 "nan 0 0 1 0 0 0" ascii '1 2 3 4\n'
+hostile viewpoint_nan.pcd VIEWPOINT
+printf '# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 5\n' >"$WORK/header_truncated.pcd"
+hostile header_truncated.pcd DATA
+printf 'ply\nformat binary_little_endian 1.0\nelement vertex 4294967296\nproperty float x\nproperty float y\nproperty float z\nend_header\n0123456789ab' >"$WORK/vertex_huge.ply"
+hostile vertex_huge.ply vertex
+mkdir -p "$WORK/a_folder_named.pcd"
+check hostile_folder 1 timeout 20 "$TOOL" map "$WORK/a_folder_named.pcd"
+expect hostile_folder_one_line one_line hostile_folder
+# Any numeric field type is converted, not zeroed: doubles, 16-bit unsigned intensity.
+pcd doubles.pcd "8 8 8 2" "F F F U" "1 1 1 1" 2 "$V" ascii '1.5 -2.25 3.125 300\n2.5 -1.25 4.125 700\n'
+check doubles_read 0 "$TOOL" info "$WORK/doubles.pcd"
+expect doubles_bounds grep -q "x \[1.5, 2.5\] y \[-2.25, -1.25\] z \[3.125, 4.125\]" "$WORK/doubles_read.out"
+expect doubles_intensity grep -q "intensity: \[300, 700\]" "$WORK/doubles_read.out"
+
 check version 0 "$TOOL" --version
 expect version_line grep -Eq '^iwlomap [0-9]+[.][0-9]+[.][0-9]+ [(]layers: core' "$WORK/version.out"
 # The progress bar in an 80-column terminal: drawn, and no line of it reaches the last column

@@ -1,0 +1,335 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#include "cloud_check.h"
+
+#include "args.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <optional>
+#include <sstream>
+#include <stdexcept>
+#include <vector>
+
+namespace iwlomap::tool {
+
+namespace {
+
+// A header longer than this is not a cloud header (PCL's own files have a few hundred bytes).
+constexpr std::size_t kMaxHeaderBytes = 1 << 20;
+// Values per point (the sum of COUNTs, or PLY properties) beyond which a file is refused.
+constexpr std::uint64_t kMaxValuesPerPoint = 1 << 16;
+
+[[noreturn]] void fail(const std::string& path, const std::string& what) {
+  throw std::runtime_error("'" + path + "': " + what);
+}
+
+std::vector<std::string> words(const std::string& line) {
+  std::istringstream in(line);
+  std::vector<std::string> out;
+  for (std::string w; in >> w;) out.push_back(w);
+  return out;
+}
+
+// A non-negative integer with nothing else in the word (no sign, no exponent, no overflow).
+std::optional<std::uint64_t> whole_number(const std::string& w) {
+  if (w.empty() || w.size() > 19 || !std::all_of(w.begin(), w.end(), [](char c) { return c >= '0' && c <= '9'; }))
+    return std::nullopt;
+  return std::stoull(w);
+}
+
+std::optional<double> finite_number(const std::string& w) {
+  char* end = nullptr;
+  const double v = std::strtod(w.c_str(), &end);
+  if (end == w.c_str() || *end != '\0' || !std::isfinite(v)) return std::nullopt;
+  return v;
+}
+
+// Reads header lines (up to the line that starts with `last`) with the offset of the data after it.
+struct HeaderLines {
+  std::vector<std::string> lines;
+  std::uint64_t data_offset = 0;
+};
+
+HeaderLines read_header(const std::string& path, std::ifstream& in, const std::string& last) {
+  HeaderLines h;
+  std::string line;
+  while (std::getline(in, line)) {
+    h.data_offset += line.size() + 1;
+    if (h.data_offset > kMaxHeaderBytes) fail(path, "no end of header in the first 1 MiB (" + last + " line missing)");
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    h.lines.push_back(line);
+    if (line.rfind(last, 0) == 0) return h;
+  }
+  fail(path, "the header ends before its " + last + " line (truncated or not a cloud file)");
+}
+
+std::uint64_t lines_after(std::ifstream& in, std::uint64_t limit) {
+  std::uint64_t n = 0;
+  std::vector<char> buf(1 << 16);
+  while (n < limit && in) {
+    in.read(buf.data(), static_cast<std::streamsize>(buf.size()));
+    n += static_cast<std::uint64_t>(std::count(buf.data(), buf.data() + in.gcount(), '\n'));
+  }
+  return n;
+}
+
+CloudHeader check_pcd(const std::string& path, std::uint64_t file_size) {
+  std::ifstream in(path, std::ios::binary);
+  const HeaderLines h = read_header(path, in, "DATA");
+  std::vector<std::string> fields, types;
+  std::vector<std::uint64_t> sizes, counts;
+  std::optional<std::uint64_t> width, height, points;
+  std::string data;
+  CloudHeader out;
+  for (const std::string& line : h.lines) {
+    const auto w = words(line);
+    if (w.empty() || w[0][0] == '#') continue;
+    const std::string& key = w[0];
+    const std::vector<std::string> v(w.begin() + 1, w.end());
+    const auto numbers = [&](std::vector<std::uint64_t>& dst) {
+      for (const std::string& s : v) {
+        const auto n = whole_number(s);
+        if (!n) fail(path, key + " '" + s + "' is not a whole number >= 0");
+        dst.push_back(*n);
+      }
+    };
+    const auto single = [&](std::optional<std::uint64_t>& dst) {
+      if (v.size() != 1 || !whole_number(v[0])) fail(path, key + " must be one whole number >= 0, got '" + line + "'");
+      dst = whole_number(v[0]);
+    };
+    if (key == "VERSION") {
+    } else if (key == "FIELDS" || key == "COLUMNS") {
+      fields = v;
+    } else if (key == "SIZE") {
+      numbers(sizes);
+    } else if (key == "TYPE") {
+      types = v;
+    } else if (key == "COUNT") {
+      numbers(counts);
+    } else if (key == "WIDTH") {
+      single(width);
+    } else if (key == "HEIGHT") {
+      single(height);
+    } else if (key == "POINTS") {
+      single(points);
+    } else if (key == "VIEWPOINT") {
+      if (v.size() != 7) fail(path, "VIEWPOINT needs 7 numbers (x y z qw qx qy qz), got " + std::to_string(v.size()));
+      for (const std::string& s : v)
+        if (!finite_number(s)) fail(path, "VIEWPOINT value '" + s + "' is not a finite number");
+      out.has_viewpoint = true;
+    } else if (key == "DATA") {
+      if (v.size() != 1) fail(path, "DATA must be ascii, binary or binary_compressed");
+      data = v[0];
+    } else {
+      fail(path, "unknown header line '" + line + "'");
+    }
+  }
+  if (fields.empty()) fail(path, "no FIELDS");
+  if (fields.size() > kMaxValuesPerPoint) fail(path, "FIELDS lists " + std::to_string(fields.size()) + " fields");
+  if (counts.empty()) counts.assign(fields.size(), 1);
+  if (sizes.size() != fields.size() || types.size() != fields.size() || counts.size() != fields.size())
+    fail(path, "FIELDS, SIZE, TYPE and COUNT list " + std::to_string(fields.size()) + ", " +
+                   std::to_string(sizes.size()) + ", " + std::to_string(types.size()) + " and " +
+                   std::to_string(counts.size()) + " entries; they must match");
+  std::uint64_t point_size = 0, values = 0;
+  for (std::size_t i = 0; i < fields.size(); ++i) {
+    const std::uint64_t s = sizes[i];
+    if (s != 1 && s != 2 && s != 4 && s != 8) fail(path, "SIZE of field '" + fields[i] + "' is " + std::to_string(s) + ", not 1, 2, 4 or 8");
+    if (types[i] != "F" && types[i] != "I" && types[i] != "U")
+      fail(path, "TYPE of field '" + fields[i] + "' is '" + types[i] + "', not F, I or U");
+    if (types[i] == "F" && s != 4 && s != 8) fail(path, "field '" + fields[i] + "' is a float of " + std::to_string(s) + " bytes");
+    if (counts[i] < 1 || counts[i] > kMaxValuesPerPoint)
+      fail(path, "COUNT of field '" + fields[i] + "' is " + std::to_string(counts[i]) + ", not in [1, 65536]");
+    values += counts[i];
+    point_size += s * counts[i];
+  }
+  if (values > kMaxValuesPerPoint) fail(path, std::to_string(values) + " values per point (COUNT) is more than a cloud has");
+  if (!width || !height) fail(path, "WIDTH and HEIGHT are required");
+  if (*width > std::numeric_limits<std::uint32_t>::max() || *height > std::numeric_limits<std::uint32_t>::max())
+    fail(path, "WIDTH or HEIGHT beyond 2^32 - 1");
+  out.points = *width * *height;  // both < 2^32: no overflow
+  if (points && *points != out.points)
+    fail(path, "POINTS is " + std::to_string(*points) + " but WIDTH x HEIGHT is " + std::to_string(out.points));
+  const std::uint64_t body = file_size - std::min(file_size, h.data_offset);
+  const std::uint64_t need = out.points * point_size;  // points < 2^64 / 2^20: fits
+  if (data == "binary") {
+    if (need > body)
+      fail(path, "the header promises " + std::to_string(out.points) + " points of " + std::to_string(point_size) +
+                     " bytes (" + std::to_string(need) + " bytes) but the file holds " + std::to_string(body) +
+                     " bytes of data (truncated?)");
+  } else if (data == "binary_compressed") {
+    if (out.points == 0) return out;
+    std::uint32_t sizes_of_block[2] = {0, 0};
+    if (body < sizeof sizes_of_block || !in.read(reinterpret_cast<char*>(sizes_of_block), sizeof sizes_of_block))
+      fail(path, "the compressed data block is missing (truncated?)");
+    if (sizes_of_block[1] != need)
+      fail(path, "the compressed block unpacks to " + std::to_string(sizes_of_block[1]) + " bytes, but " +
+                     std::to_string(out.points) + " points of " + std::to_string(point_size) + " bytes need " +
+                     std::to_string(need));
+    if (sizes_of_block[0] > body - sizeof sizes_of_block)
+      fail(path, "the compressed block has " + std::to_string(sizes_of_block[0]) + " bytes but the file holds " +
+                     std::to_string(body - sizeof sizes_of_block) + " (truncated?)");
+  } else if (data == "ascii") {
+    const std::uint64_t lines = lines_after(in, out.points);
+    // The last line may lack its newline.
+    if (lines + 1 < out.points)
+      fail(path, "the header promises " + std::to_string(out.points) + " points but the file has " +
+                     std::to_string(lines) + " lines of data (truncated?)");
+  } else {
+    fail(path, "DATA is '" + data + "', not ascii, binary or binary_compressed");
+  }
+  return out;
+}
+
+std::uint64_t ply_type_size(const std::string& t) {
+  if (t == "char" || t == "uchar" || t == "int8" || t == "uint8") return 1;
+  if (t == "short" || t == "ushort" || t == "int16" || t == "uint16") return 2;
+  if (t == "int" || t == "uint" || t == "float" || t == "int32" || t == "uint32" || t == "float32") return 4;
+  if (t == "double" || t == "float64") return 8;
+  return 0;
+}
+
+CloudHeader check_ply(const std::string& path, std::uint64_t file_size) {
+  std::ifstream in(path, std::ios::binary);
+  std::string first;
+  if (!std::getline(in, first) || (first != "ply" && first != "ply\r")) fail(path, "not a PLY file (no 'ply' line)");
+  in.seekg(0);
+  const HeaderLines h = read_header(path, in, "end_header");
+  const std::uint64_t body = file_size - std::min(file_size, h.data_offset);
+  CloudHeader out;
+  bool binary = false, in_vertex = false, vertex_has_list = false, seen_vertex = false;
+  std::uint64_t vertex_size = 0, elements = 0;
+  int xyz = 0;
+  for (std::size_t i = 1; i < h.lines.size(); ++i) {
+    const auto w = words(h.lines[i]);
+    if (w.empty() || w[0] == "comment" || w[0] == "obj_info" || w[0] == "end_header") continue;
+    if (w[0] == "format") {
+      if (w.size() != 3) fail(path, "bad format line '" + h.lines[i] + "'");
+      if (w[1] == "binary_little_endian" || w[1] == "binary_big_endian")
+        binary = true;
+      else if (w[1] != "ascii")
+        fail(path, "format '" + w[1] + "' is not ascii, binary_little_endian or binary_big_endian");
+    } else if (w[0] == "element") {
+      if (w.size() != 3) fail(path, "bad element line '" + h.lines[i] + "'");
+      const auto n = whole_number(w[2]);
+      if (!n) fail(path, "element '" + w[1] + "' count '" + w[2] + "' is not a whole number >= 0");
+      // Every element takes at least one byte of the body (binary) or one line (ASCII).
+      if (*n > body) fail(path, "element '" + w[1] + "' count " + w[2] + " is more than the " + std::to_string(body) + " bytes of data can hold (truncated?)");
+      elements += *n;
+      in_vertex = w[1] == "vertex";
+      if (in_vertex) {
+        seen_vertex = true;
+        out.points = *n;
+      }
+    } else if (w[0] == "property") {
+      if (w.size() == 5 && w[1] == "list") {
+        if (ply_type_size(w[2]) == 0 || ply_type_size(w[3]) == 0) fail(path, "bad list property '" + h.lines[i] + "'");
+        if (in_vertex) vertex_has_list = true;
+      } else if (w.size() == 3) {
+        const std::uint64_t s = ply_type_size(w[1]);
+        if (s == 0) fail(path, "property '" + w[2] + "' has unknown type '" + w[1] + "'");
+        if (in_vertex) {
+          vertex_size += s;
+          if (w[2] == "x" || w[2] == "y" || w[2] == "z") ++xyz;
+        }
+      } else {
+        fail(path, "bad property line '" + h.lines[i] + "'");
+      }
+    } else {
+      fail(path, "unknown header line '" + h.lines[i] + "'");
+    }
+  }
+  if (!seen_vertex) fail(path, "no vertex element");
+  if (xyz != 3) fail(path, "the vertex element has no x, y and z properties");
+  if (binary && !vertex_has_list && out.points * vertex_size > body)
+    fail(path, "the header promises " + std::to_string(out.points) + " vertices of " + std::to_string(vertex_size) +
+                   " bytes but the file holds " + std::to_string(body) + " bytes of data (truncated?)");
+  if (!binary && elements > 0 && lines_after(in, elements) + 1 < elements)
+    fail(path, "the header promises " + std::to_string(elements) + " elements but the file has fewer lines (truncated?)");
+  return out;
+}
+
+// Reads one value of a field of type (datatype) at p as a double.
+double read_value(const std::uint8_t* p, std::uint8_t datatype) {
+  const auto get = [p](auto v) {
+    std::memcpy(&v, p, sizeof v);
+    return static_cast<double>(v);
+  };
+  switch (datatype) {
+    case pcl::PCLPointField::INT8: return get(std::int8_t{});
+    case pcl::PCLPointField::UINT8: return get(std::uint8_t{});
+    case pcl::PCLPointField::INT16: return get(std::int16_t{});
+    case pcl::PCLPointField::UINT16: return get(std::uint16_t{});
+    case pcl::PCLPointField::INT32: return get(std::int32_t{});
+    case pcl::PCLPointField::UINT32: return get(std::uint32_t{});
+    case pcl::PCLPointField::FLOAT32: return get(float{});
+    case pcl::PCLPointField::FLOAT64: return get(double{});
+    case pcl::PCLPointField::INT64: return get(std::int64_t{});
+    case pcl::PCLPointField::UINT64: return get(std::uint64_t{});
+    default: return std::numeric_limits<double>::quiet_NaN();
+  }
+}
+
+std::size_t datatype_size(std::uint8_t datatype) {
+  switch (datatype) {
+    case pcl::PCLPointField::INT8:
+    case pcl::PCLPointField::UINT8: return 1;
+    case pcl::PCLPointField::INT16:
+    case pcl::PCLPointField::UINT16: return 2;
+    case pcl::PCLPointField::INT32:
+    case pcl::PCLPointField::UINT32:
+    case pcl::PCLPointField::FLOAT32: return 4;
+    default: return 8;
+  }
+}
+
+}  // namespace
+
+CloudHeader check_cloud_file(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) fail(path, ec ? ec.message() : "not a regular file");
+  const std::uint64_t size = std::filesystem::file_size(path, ec);
+  if (ec) fail(path, ec.message());
+  const std::string ext = extension(path);
+  if (ext == ".pcd") return check_pcd(path, size);
+  if (ext == ".ply") return check_ply(path, size);
+  fail(path, "unsupported cloud format (use .pcd or .ply)");
+}
+
+void blob_to_xyzi(const pcl::PCLPointCloud2& blob, float missing_intensity, const std::string& path,
+                  pcl::PointCloud<pcl::PointXYZI>& out) {
+  const auto find = [&](const char* name) -> const pcl::PCLPointField* {
+    for (const auto& f : blob.fields)
+      if (f.name == name) {
+        if (f.offset + datatype_size(f.datatype) > blob.point_step)
+          fail(path, std::string("field '") + name + "' lies outside the point");
+        return &f;
+      }
+    return nullptr;
+  };
+  const pcl::PCLPointField* fx = find("x");
+  const pcl::PCLPointField* fy = find("y");
+  const pcl::PCLPointField* fz = find("z");
+  const pcl::PCLPointField* fi = find("intensity");
+  if (!fx || !fy || !fz) fail(path, "the cloud has no x, y, z fields");
+  const std::uint64_t n = static_cast<std::uint64_t>(blob.width) * blob.height;
+  if (n * blob.point_step > blob.data.size()) fail(path, "the data is shorter than the header says (truncated?)");
+  out.resize(static_cast<std::size_t>(n));
+  out.width = blob.width;
+  out.height = blob.height;
+  out.is_dense = false;
+  for (std::uint64_t i = 0; i < n; ++i) {
+    const std::uint8_t* p = blob.data.data() + i * blob.point_step;
+    pcl::PointXYZI& q = out[static_cast<std::size_t>(i)];
+    q.x = static_cast<float>(read_value(p + fx->offset, fx->datatype));
+    q.y = static_cast<float>(read_value(p + fy->offset, fy->datatype));
+    q.z = static_cast<float>(read_value(p + fz->offset, fz->datatype));
+    q.intensity = fi ? static_cast<float>(read_value(p + fi->offset, fi->datatype)) : missing_intensity;
+  }
+}
+
+}  // namespace iwlomap::tool
