@@ -8,9 +8,11 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 namespace iwlomap::viewer {
 namespace {
@@ -135,3 +137,23 @@ TEST(ToRgb8, RoundsAndClamps) {
 
 }  // namespace
 }  // namespace iwlomap::viewer
+
+TEST(ColorMap, LabelDecimalsKeepEvenlySpacedLabelsDistinct) {
+  EXPECT_EQ(iwlomap::viewer::label_decimals(0.5, 1.0, 5), 2);      // 0.50 0.62 0.75 0.88 1.00
+  EXPECT_EQ(iwlomap::viewer::label_decimals(0.0, 100.0, 5), 0);    // 0 25 50 75 100
+  EXPECT_EQ(iwlomap::viewer::label_decimals(0.0, 8.0, 5), 1);      // 0.0 2.0 4.0 6.0 8.0
+  EXPECT_EQ(iwlomap::viewer::label_decimals(100.0, 100.04, 5), 3); // 100.000 100.010 ...
+  EXPECT_EQ(iwlomap::viewer::label_decimals(1.0, 1.0, 5), 2);      // an empty range
+  EXPECT_EQ(iwlomap::viewer::label_decimals(0.0, 1e-20, 5), 10);   // capped
+  // Whatever the range, the printed labels differ.
+  for (const auto& [lo, hi] : {std::pair{0.5, 0.51}, std::pair{-3.2, 1000.0}, std::pair{1e6, 1e6 + 0.3}, std::pair{0.0, 0.007}}) {
+    const int d = iwlomap::viewer::label_decimals(lo, hi, 5);
+    std::string previous;
+    for (int i = 0; i < 5; ++i) {
+      char buf[64];
+      std::snprintf(buf, sizeof buf, "%.*f", d, lo + (hi - lo) * i / 4.0);
+      EXPECT_NE(previous, buf) << lo << " .. " << hi;
+      previous = buf;
+    }
+  }
+}

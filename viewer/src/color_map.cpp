@@ -90,4 +90,10 @@ std::vector<Rgb> ColorMap::sample(std::size_t n) const {
   return out;
 }
 
+int label_decimals(double lo, double hi, int labels) {
+  const double step = (hi - lo) / std::max(1, labels - 1);
+  if (!std::isfinite(step) || !(step > 0.0)) return 2;
+  return std::clamp(static_cast<int>(std::ceil(-std::log10(step))) + 1, 0, 10);
+}
+
 }  // namespace iwlomap::viewer

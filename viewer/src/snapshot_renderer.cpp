@@ -353,8 +353,10 @@ RgbImage render_scene(void* display, const Eigen::MatrixXd& v, double resolution
     lut->SetTableRange(lo, hi);
     bar_actor->SetLookupTable(lut);
     bar_actor->SetTitle(o.color_by == ColorBy::kProbability ? "probability" : "height (m)");
-    bar_actor->SetNumberOfLabels(5);
-    bar_actor->SetLabelFormat(o.color_by == ColorBy::kProbability || hi - lo < 10.0 ? "%.2f" : "%.1f");
+    constexpr int kLabels = 5;
+    bar_actor->SetNumberOfLabels(kLabels);
+    const std::string label_format = "%." + std::to_string(label_decimals(lo, hi, kLabels)) + "f";
+    bar_actor->SetLabelFormat(label_format.c_str());
     bar_actor->UnconstrainedFontSizeOn();
     bar_actor->SetBarRatio(0.28);
     // Keeps the title clear of the top label, which VTK centres on the end of the bar.

@@ -22,6 +22,12 @@ struct Rgb {
 /// 8-bit form of \p c (each component clamped to [0, 1] and rounded), as PNG files store it.
 [[nodiscard]] std::array<std::uint8_t, 3> to_rgb8(const Rgb& c);
 
+/// The number of decimals (0 to 10) with which \p labels evenly spaced values over [\p lo, \p hi]
+/// print as distinct numbers: one more than the leading digit of the step between them needs, so
+/// [0.5, 1] gives 2 ("0.50 0.62 0.75 0.88 1.00") and a height range [100.00, 100.04] gives 3. An
+/// empty or invalid range gives 2.
+[[nodiscard]] int label_decimals(double lo, double hi, int labels);
+
 /// A colour ramp: colours at increasing positions in [0, 1], interpolated linearly between them
 /// (in RGB). The first stop is at 0 and the last at 1.
 class ColorMap {

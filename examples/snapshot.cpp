@@ -1,0 +1,30 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// An off-screen PNG of a map: no window opens (on a machine without a screen, run it under
+// xvfb-run -a -s "-screen 0 1280x1024x24 -noreset").
+//
+//   snapshot OUT.png
+#include <iwlomap/probability_updater.h>
+#include <iwlomap/synthetic_scan.h>
+#include <iwlomap/viewer/snapshot_renderer.h>
+
+#include <iostream>
+
+int main(int argc, char** argv) {
+  if (argc != 2) {
+    std::cerr << "usage: " << argv[0] << " OUT.png\n";
+    return 2;
+  }
+  iwlomap::ProbabilityUpdater map(0.1);
+  iwlomap::IwloParams params;
+  params.intensity_threshold = 0.0;  // lidar: every return is a hit
+  map.set_params(params);
+  const iwlomap::SyntheticScan scan = iwlomap::make_synthetic_scan();
+  map.insert_scan(scan.origin, scan.points, scan.intensities, 30.0);
+
+  iwlomap::viewer::SnapshotOptions options;  // 1280 x 960, coloured by height, with a colour bar
+  options.title = "synthetic courtyard, 0.1 m";
+  // Throws std::runtime_error with a hint when no X display can be opened.
+  iwlomap::viewer::SnapshotRenderer::render_png(map, options, argv[1]);
+  std::cout << "wrote " << argv[1] << "\n";
+  return 0;
+}
