@@ -164,12 +164,8 @@ OctreeMapper::OctreeMapper(double resolution, double prob_hit, double prob_miss,
   check_model(prob_hit, prob_miss, prob_thres_min, prob_thres_max);
   impl_ = std::make_unique<Impl>(resolution, prob_hit, prob_miss, prob_thres_min, prob_thres_max);
 }
-OctreeMapper::~OctreeMapper() = default;
-OctreeMapper::OctreeMapper(OctreeMapper&&) noexcept = default;
-OctreeMapper& OctreeMapper::operator=(OctreeMapper&&) noexcept = default;
 
-OctreeMapper::Impl& OctreeMapper::impl() { return detail::checked_impl(impl_, "OctreeMapper"); }
-const OctreeMapper::Impl& OctreeMapper::impl() const { return detail::checked_impl(impl_, "OctreeMapper"); }
+IWLOMAP_DEFINE_PIMPL_MEMBERS(OctreeMapper)
 
 // ---- OctoMap's own model ----
 

@@ -18,3 +18,13 @@ Impl& checked_impl(const std::unique_ptr<Impl>& impl, const char* type) {
 }
 
 }  // namespace iwlomap::detail
+
+/// Defines a backend's destructor and moves (defaulted where Impl is complete) and its impl()
+/// accessors (checked_impl()), the same for every backend: use once in its .cpp, at namespace
+/// iwlomap scope.
+#define IWLOMAP_DEFINE_PIMPL_MEMBERS(Class)                                                         \
+  Class::~Class() = default;                                                                      \
+  Class::Class(Class&&) noexcept = default;                                                       \
+  Class& Class::operator=(Class&&) noexcept = default;                                            \
+  Class::Impl& Class::impl() { return detail::checked_impl(impl_, #Class); }                      \
+  const Class::Impl& Class::impl() const { return detail::checked_impl(impl_, #Class); }

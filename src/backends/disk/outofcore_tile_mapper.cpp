@@ -20,12 +20,7 @@ OutofcoreTileMapper::OutofcoreTileMapper(const std::string& directory, double re
   impl_ = std::make_unique<Impl>(directory, resolution, tile_size, cache_tiles);
 }
 
-OutofcoreTileMapper::~OutofcoreTileMapper() = default;
-OutofcoreTileMapper::OutofcoreTileMapper(OutofcoreTileMapper&&) noexcept = default;
-OutofcoreTileMapper& OutofcoreTileMapper::operator=(OutofcoreTileMapper&&) noexcept = default;
-
-OutofcoreTileMapper::Impl& OutofcoreTileMapper::impl() { return detail::checked_impl(impl_, "OutofcoreTileMapper"); }
-const OutofcoreTileMapper::Impl& OutofcoreTileMapper::impl() const { return detail::checked_impl(impl_, "OutofcoreTileMapper"); }
+IWLOMAP_DEFINE_PIMPL_MEMBERS(OutofcoreTileMapper)
 
 void OutofcoreTileMapper::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                                             const std::vector<bool>& is_occupied) {

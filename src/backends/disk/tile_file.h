@@ -167,10 +167,12 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
     return k.x >= lo[0] && k.x < lo[0] + edge && k.y >= lo[1] && k.y < lo[1] + edge && k.z >= lo[2] &&
            k.z < lo[2] + edge;
   };
-  std::uint64_t known_total = 0;
+  // A record: block key, voxel count, 512-bit mask of the voxels that follow, then the voxels.
+  // Checks that the block lies in the tile, keys increase, the count matches the mask and the
+  // record's \p cell_bytes per voxel fit; advances p past the fixed part.
   VoxelKey previous{};
-  for (std::uint32_t r = 0; r < h.record_count; ++r) {
-    const std::string where = "record " + std::to_string(r);
+  std::uint64_t mask[kBlockVoxels / 64];
+  const auto read_record_head = [&](const std::string& where, bool first, std::size_t cell_bytes) {
     if (static_cast<std::size_t>(end - p) < kRecordFixedBytes) throw_corrupt(path, where + " is cut short");
     const VoxelKey key{static_cast<std::int32_t>(load_u32(p)), static_cast<std::int32_t>(load_u32(p + 4)),
                        static_cast<std::int32_t>(load_u32(p + 8))};
@@ -178,9 +180,8 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
     if (!block_in_tile(key))
       throw_corrupt(path, where + " holds block (" + std::to_string(key.x) + ", " + std::to_string(key.y) + ", " +
                               std::to_string(key.z) + ") outside the tile");
-    if (r > 0 && !(previous < key)) throw_corrupt(path, where + " is out of order or repeated");
+    if (!first && !(previous < key)) throw_corrupt(path, where + " is out of order or repeated");
     previous = key;
-    std::uint64_t mask[kBlockVoxels / 64];
     std::uint32_t bits = 0;
     for (int w = 0; w < kBlockVoxels / 64; ++w) {
       mask[w] = load_u64(p + 16 + 8 * w);
@@ -189,8 +190,14 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
     if (n == 0 || n != bits)
       throw_corrupt(path, where + " announces " + std::to_string(n) + " voxels, its mask holds " + std::to_string(bits));
     p += kRecordFixedBytes;
-    if (static_cast<std::size_t>(end - p) < static_cast<std::size_t>(n) * kVoxelBytes)
+    if (static_cast<std::size_t>(end - p) < static_cast<std::size_t>(n) * cell_bytes)
       throw_corrupt(path, where + " is cut short");
+    return std::pair<VoxelKey, std::uint32_t>(key, n);
+  };
+  std::uint64_t known_total = 0;
+  for (std::uint32_t r = 0; r < h.record_count; ++r) {
+    const std::string where = "record " + std::to_string(r);
+    const auto [key, n] = read_record_head(where, r == 0, kVoxelBytes);
     scratch.key = key;
     scratch.known = n;
     scratch.voxels.fill(Voxel{});
@@ -215,26 +222,7 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
   std::unique_ptr<HitAccumulator::Block> cells;
   for (std::uint32_t r = 0; r < h.hit_record_count; ++r) {
     const std::string where = "hit record " + std::to_string(r);
-    if (static_cast<std::size_t>(end - p) < kRecordFixedBytes) throw_corrupt(path, where + " is cut short");
-    const VoxelKey key{static_cast<std::int32_t>(load_u32(p)), static_cast<std::int32_t>(load_u32(p + 4)),
-                       static_cast<std::int32_t>(load_u32(p + 8))};
-    const std::uint32_t n = load_u32(p + 12);
-    if (!block_in_tile(key))
-      throw_corrupt(path, where + " holds block (" + std::to_string(key.x) + ", " + std::to_string(key.y) + ", " +
-                              std::to_string(key.z) + ") outside the tile");
-    if (r > 0 && !(previous < key)) throw_corrupt(path, where + " is out of order or repeated");
-    previous = key;
-    std::uint64_t mask[kBlockVoxels / 64];
-    std::uint32_t bits = 0;
-    for (int w = 0; w < kBlockVoxels / 64; ++w) {
-      mask[w] = load_u64(p + 16 + 8 * w);
-      bits += static_cast<std::uint32_t>(__builtin_popcountll(mask[w]));
-    }
-    if (n == 0 || n != bits)
-      throw_corrupt(path, where + " announces " + std::to_string(n) + " voxels, its mask holds " + std::to_string(bits));
-    p += kRecordFixedBytes;
-    if (static_cast<std::size_t>(end - p) < static_cast<std::size_t>(n) * kHitCellBytes)
-      throw_corrupt(path, where + " is cut short");
+    const VoxelKey key = read_record_head(where, r == 0, kHitCellBytes).first;
     if (!cells) cells = std::make_unique<HitAccumulator::Block>();
     cells->cells.fill(HitCell{});
     for (int w = 0; w < kBlockVoxels / 64; ++w) {

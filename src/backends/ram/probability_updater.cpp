@@ -63,12 +63,8 @@ ProbabilityUpdater::ProbabilityUpdater(double resolution) {
   detail::check_resolution(resolution);
   impl_ = std::make_unique<Impl>(resolution);
 }
-ProbabilityUpdater::~ProbabilityUpdater() = default;
-ProbabilityUpdater::ProbabilityUpdater(ProbabilityUpdater&&) noexcept = default;
-ProbabilityUpdater& ProbabilityUpdater::operator=(ProbabilityUpdater&&) noexcept = default;
 
-ProbabilityUpdater::Impl& ProbabilityUpdater::impl() { return detail::checked_impl(impl_, "ProbabilityUpdater"); }
-const ProbabilityUpdater::Impl& ProbabilityUpdater::impl() const { return detail::checked_impl(impl_, "ProbabilityUpdater"); }
+IWLOMAP_DEFINE_PIMPL_MEMBERS(ProbabilityUpdater)
 
 void ProbabilityUpdater::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                                            const std::vector<bool>& is_occupied) {
