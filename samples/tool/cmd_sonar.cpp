@@ -126,7 +126,7 @@ int run_sonar(const std::vector<std::string>& argv) {
   flag_opts.insert({"-h", "--help", "-q", "--quiet"});
   const Args args(argv, value_opts, flag_opts);
   if (args.flag("-h") || args.flag("--help")) {
-    std::cout << kHelp << map_outputs_help() << map_options_help();
+    std::cout << kHelp << map_outputs_help() << map_options_help(/*rays=*/false);
     return 0;
   }
   const auto& inputs = args.positional();

@@ -18,9 +18,13 @@ std::set<std::string> map_value_options() {
 
 std::set<std::string> map_flag_options() { return {"--no-rays", "--no-adaptive"}; }
 
-std::string map_options_help() {
+std::string map_options_help(bool rays) {
   const IwloParams d;
   const auto num = [](double v) { return shortest(v); };
+  const std::string ray_options = rays ? R"(  --max-range M             clip rays longer than M metres; those points give no hit (default: none)
+  --no-rays                 no ray casting: every point is one observation, occupied iff its
+                            intensity exceeds the threshold (sonar pipelines)
+)" : "";
   return std::string(R"(
 map:
   --resolution M            voxel edge in metres (default 0.05)
@@ -30,13 +34,10 @@ map:
   --tile-size M             disk backend: tile edge in metres, rounded to whole blocks of 8 voxels
                             (default 10; 'iwlomap info DIR' prints the size in use)
   --cache-tiles N           disk backend: tiles kept in RAM (default 16)
-  --max-range M             clip rays longer than M metres; those points give no hit (default: none)
-  --no-rays                 no ray casting: every point is one observation, occupied iff its
-                            intensity exceeds the threshold (sonar pipelines)
-  --sensor sonar|lidar      preset: sonar keeps the defaults (an echo at or below the intensity
+)") + ray_options + R"(  --sensor sonar|lidar      preset: sonar keeps the defaults (an echo at or below the intensity
                             threshold is free space); lidar sets --intensity-threshold 0, so every
                             return is a hit weighted by its intensity. Options below override it.
-  --threshold P             output voxels with occupancy probability > P (default )") + num(d.occupied_threshold) + R"()
+  --threshold P             output voxels with occupancy probability > P (default )" + num(d.occupied_threshold) + R"()
   --threads N               threads for ray casting (default 1; 0 = all cores); same map for any N
 
 IWLO parameters (defaults in brackets):

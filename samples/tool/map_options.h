@@ -24,7 +24,9 @@ struct MapSetup {
 
 [[nodiscard]] std::set<std::string> map_value_options();
 [[nodiscard]] std::set<std::string> map_flag_options();
-[[nodiscard]] std::string map_options_help();
+/// Help lines for the map options; \p rays false leaves out --max-range and --no-rays (for
+/// commands that cast no rays from points, as `sonar`, which gives --max-range its own meaning).
+[[nodiscard]] std::string map_options_help(bool rays = true);
 
 /// Builds the backend and parameters the options ask for (preset first, explicit options over it).
 [[nodiscard]] MapSetup map_setup_from(const Args& args);

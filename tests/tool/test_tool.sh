@@ -45,6 +45,11 @@ for cmd in map info generate export; do
 done
 expect map_help_lists_every_option bash -c "for o in --tile-size --cache-tiles --octomap --snapshot --threads --async --resolution --backend --tiles --max-range --no-rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
 
+check help_sonar 0 "$TOOL" sonar --help
+expect sonar_help_max_range_once test "$(grep -c -- '--max-range' "$WORK/help_sonar.out")" = 1
+expect sonar_help_no_rays_not_offered bash -c "! grep -Eq -- '^  --no-rays {2,}' '$WORK/help_sonar.out'"
+expect sonar_help_outputs bash -c "grep -q -- '--octomap' '$WORK/help_sonar.out' && grep -q -- '--snapshot' '$WORK/help_sonar.out'"
+
 check generate 0 "$TOOL" generate -o "$WORK/scan.pcd" --rings 16 --columns 256
 check info 0 "$TOOL" info "$WORK/scan.pcd"
 expect info_counts grep -q "4096 points" "$WORK/info.out"
