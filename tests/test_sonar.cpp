@@ -371,6 +371,13 @@ TEST(SonarImageProjector, InvalidInputThrowsNamingTheValue) {
   g.min_range = 0.3;
   g.max_range = 0.3;
   expect_invalid([&] { project_with(g); }, "max_range");
+  // Beyond what a sonar measures (a crafted file would take memory without bound).
+  g = good.geometry;
+  g.range_resolution = 10.0;
+  expect_invalid([&] { project_with(g); }, "range_resolution");
+  g = good.geometry;
+  g.max_range = 5000.0;
+  expect_invalid([&] { project_with(g); }, "max_range");
   g = good.geometry;
   g.min_range = -0.1;
   expect_invalid([&] { project_with(g); }, "min_range");
@@ -515,6 +522,12 @@ void put_u32(std::vector<std::uint8_t>& b, std::size_t at, std::uint32_t v) {
   for (int i = 0; i < 4; ++i) b[at + static_cast<std::size_t>(i)] = static_cast<std::uint8_t>(v >> (8 * i));
 }
 
+void put_f64(std::vector<std::uint8_t>& b, std::size_t at, double v) {
+  std::uint64_t bits = 0;
+  std::memcpy(&bits, &v, sizeof bits);
+  for (int i = 0; i < 8; ++i) b[at + static_cast<std::size_t>(i)] = static_cast<std::uint8_t>(bits >> (8 * i));
+}
+
 TEST(OculusReader, MalformedOrTruncatedFilesNameTheFileAndOffset) {
   SKIP_WITHOUT_OCULUS_DATA();
   const std::vector<std::uint8_t> good = read_bytes(kOculusDir + "/three_pings_8bit.raw");
@@ -536,6 +549,14 @@ TEST(OculusReader, MalformedOrTruncatedFilesNameTheFileAndOffset) {
   bad = good;
   put_u32(bad, 110, 300);  // image offset inside the bearing table
   expect_format_error(bad, 110, "image offset 300");
+
+  bad = good;
+  put_f64(bad, 98, 10.0);  // 10 m range bins: no sonar has them
+  expect_format_error(bad, 98, "range resolution 10 m");
+
+  bad = good;
+  put_f64(bad, 21, 5000.0);  // a 5 km range
+  expect_format_error(bad, 21, "range 5000 m");
 
   bad = good;
   bad[97] = 1;  // 16-bit data

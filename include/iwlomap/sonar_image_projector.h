@@ -106,12 +106,21 @@ using SonarImage16 = Eigen::Matrix<std::uint16_t, Eigen::Dynamic, Eigen::Dynamic
 using SonarImageF = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic>;
 
 /// The acquisition geometry of one ping.
+/// Bounds of what an imaging sonar can measure, checked by SonarGeometry::validate() and by
+/// read_oculus_pings(): beyond them a ping is a corrupt or crafted file, and projecting it would
+/// take memory without bound (free space sampled at the map's resolution out to its range).
+/// Imaging sonars range to about 300 m at their lowest frequencies, with bins of a few
+/// centimetres.
+constexpr double kMaxSonarRange = 1000.0;           ///< metres
+constexpr double kMaxSonarRangeResolution = 1.0;    ///< metres per range bin
+
 struct SonarGeometry {
   std::vector<double> bearings;   ///< radians, one per beam (column), positive toward +Y
-  double range_resolution = 0.0;  ///< metres per range bin, > 0
+  double range_resolution = 0.0;  ///< metres per range bin, in (0, kMaxSonarRangeResolution]
   double min_range = 0.0;         ///< metres, >= 0: no evidence closer than this
-  double max_range = 0.0;         ///< metres, > min_range: no evidence beyond this (nor beyond
-                                  ///< the image's last bin, range_bins * range_resolution)
+  double max_range = 0.0;         ///< metres, in (min_range, kMaxSonarRange]: no evidence beyond
+                                  ///< this (nor beyond the image's last bin, range_bins *
+                                  ///< range_resolution)
   double vertical_aperture = 0.0; ///< full vertical opening of every beam, radians, in [0, pi)
 
   /// Throws std::invalid_argument naming the first invalid value; \p beams is the image's width.

@@ -86,9 +86,15 @@ OculusPing parse_ping(const Reader& in, std::size_t at, std::size_t length) {
 
   if (data_size != 0)
     in.fail(at + 97, "data size " + std::to_string(data_size) + " (only 8-bit images, data size 0, are read)");
-  if (!(std::isfinite(ping.range_resolution) && ping.range_resolution > 0.0))
-    in.fail(at + 98, "range resolution " + number(ping.range_resolution) + " m is not finite and > 0");
+  if (!(std::isfinite(ping.range_resolution) && ping.range_resolution > 0.0 &&
+        ping.range_resolution <= kMaxSonarRangeResolution))
+    in.fail(at + 98, "range resolution " + number(ping.range_resolution) + " m is not in (0, 1] m");
   if (ping.range_bins == 0) in.fail(at + 106, "range bin count is 0");
+  if (!(std::isfinite(ping.range) && ping.range > 0.0 && ping.range <= kMaxSonarRange))
+    in.fail(at + 21, "range " + number(ping.range) + " m is not in (0, 1000] m");
+  if (ping.range_bins * ping.range_resolution > kMaxSonarRange)
+    in.fail(at + 106, std::to_string(ping.range_bins) + " range bins of " + number(ping.range_resolution) +
+                          " m reach beyond 1000 m");
   if (ping.beams == 0) in.fail(at + 108, "beam count is 0");
   if (message_size != length)
     in.fail(at + 118, "message size " + std::to_string(message_size) + " differs from the header's 16 + payload = " +

@@ -58,11 +58,12 @@ void SonarGeometry::validate(int beams) const {
   for (std::size_t i = 0; i < bearings.size(); ++i)
     if (!(std::isfinite(bearings[i]) && std::abs(bearings[i]) < kPi))
       fail(what, ("bearings[" + std::to_string(i) + "]").c_str(), bearings[i], "must be finite radians in (-pi, pi)");
-  if (!(std::isfinite(range_resolution) && range_resolution > 0.0))
-    fail(what, "range_resolution", range_resolution, "must be finite and > 0");
+  if (!(std::isfinite(range_resolution) && range_resolution > 0.0 && range_resolution <= kMaxSonarRangeResolution))
+    fail(what, "range_resolution", range_resolution, "must be in (0, 1] metres (kMaxSonarRangeResolution)");
   if (!(std::isfinite(min_range) && min_range >= 0.0)) fail(what, "min_range", min_range, "must be finite and >= 0");
-  if (!(std::isfinite(max_range) && max_range > min_range))
-    fail(what, "max_range", max_range, ("must be finite and > min_range = " + std::to_string(min_range)).c_str());
+  if (!(std::isfinite(max_range) && max_range > min_range && max_range <= kMaxSonarRange))
+    fail(what, "max_range", max_range,
+         ("must be > min_range = " + std::to_string(min_range) + " and <= 1000 metres (kMaxSonarRange)").c_str());
   if (!(std::isfinite(vertical_aperture) && vertical_aperture >= 0.0 && vertical_aperture < kPi))
     fail(what, "vertical_aperture", vertical_aperture, "must be radians in [0, pi)");
 }
