@@ -262,6 +262,51 @@ TEST(OutofcoreTileMapper, ReadMapInfoReportsTheStoredGeometryWithoutOpening) {
   }
 }
 
+TEST(OutofcoreTileMapper, ReadOnlyOpenReadsBesideAWriterChangesNoFileAndRefusesChanges) {
+  const TempDir tmp;
+  const std::string dir = tmp.sub("map");
+  OutofcoreTileMapper writer(dir, 0.2, 6.4, 4);  // holds the lock all along
+  SyntheticScanOptions o;
+  o.rings = 16;
+  o.columns = 128;
+  const SyntheticScan scan = make_synthetic_scan(o);
+  writer.insert_scan(scan.origin, scan.points, scan.intensities, 9.0);
+  writer.flush();
+  const auto image = directory_image(dir);
+  {
+    OutofcoreTileMapper reader = OutofcoreTileMapper::open_read_only(dir, 2);  // 2 of the tiles
+    EXPECT_TRUE(reader.is_read_only());
+    EXPECT_FALSE(writer.is_read_only());
+    EXPECT_DOUBLE_EQ(reader.get_resolution(), 0.2);
+    expect_same_map(reader, writer);  // through evictions: 2 resident tiles of many
+    const Eigen::MatrixXd p = scan.points.topRows(3);
+    const Eigen::VectorXd in = scan.intensities.head(3);
+    const auto refuses = [&](const std::function<void()>& call, const char* what) {
+      try {
+        call();
+        ADD_FAILURE() << what << " did not throw";
+      } catch (const std::logic_error& e) {
+        EXPECT_NE(std::string(e.what()).find("read-only"), std::string::npos) << e.what();
+        EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+      }
+    };
+    refuses([&] { reader.batch_update_iwlo(p, in, {true, true, true}); }, "batch_update_iwlo");
+    refuses([&] { reader.batch_update_iwlo(p, in, {true, true, true}, Eigen::VectorXd::Ones(3)); }, "batch_update_iwlo");
+    refuses([&] { reader.insert_scan(scan.origin, p, in); }, "insert_scan");
+    refuses([&] { reader.set_params(IwloParams{}); }, "set_params");
+    refuses([&] { reader.set_occupied_threshold(0.6); }, "modify_params");
+    refuses([&] { reader.set_hit_accumulation(true); }, "set_hit_accumulation");
+    refuses([&] { reader.set_log_odds(p, Eigen::VectorXd::Zero(3)); }, "set_log_odds");
+    refuses([&] { reader.clear(); }, "clear");
+    reader.flush();  // nothing to write
+    expect_same_map(reader, writer);
+  }
+  EXPECT_EQ(directory_image(dir), image) << "a read-only mapper must not change any file";
+  EXPECT_THROW((void)OutofcoreTileMapper::open_read_only(tmp.sub("absent")), StorageError);
+  EXPECT_FALSE(fs::exists(tmp.sub("absent"))) << "a read-only open must not create the directory";
+  EXPECT_THROW((void)OutofcoreTileMapper::open_read_only(dir, 0), std::invalid_argument);
+}
+
 TEST(OutofcoreTileMapper, MatchesRamWhenScansCastOnSeveralThreads) {
   const TempDir tmp;
   ProbabilityUpdater ram(0.2);

@@ -119,6 +119,17 @@ class OutofcoreTileMapper final : public BackendBase {
   /// StorageError for a directory or file that cannot be used (see the class comment).
   explicit OutofcoreTileMapper(const std::string& directory, double resolution = 0.05, double tile_size = 10.0,
                                size_t cache_tiles = 16);
+  /// Opens the map in \p directory read-only, at its stored resolution and tile size, keeping at
+  /// most \p cache_tiles tiles (>= 1) in RAM: no lock is taken and nothing in the directory is
+  /// created, removed or written, so a map can be read while a writer has it open (each tile read
+  /// is one complete committed state of its file) or on a read-only file system. Every method that
+  /// would change the map (updates, scans, parameters, hit accumulation, set_log_odds, clear)
+  /// throws std::logic_error; flush() does nothing. Throws StorageError when there is no
+  /// map in \p directory or it is damaged.
+  [[nodiscard]] static OutofcoreTileMapper open_read_only(const std::string& directory, size_t cache_tiles = 16);
+  /// True for a mapper from open_read_only().
+  [[nodiscard]] bool is_read_only() const;
+
   /// Flushes; never throws (see the class comment).
   ~OutofcoreTileMapper() override;
   OutofcoreTileMapper(const OutofcoreTileMapper&) = delete;
@@ -219,6 +230,7 @@ class OutofcoreTileMapper final : public BackendBase {
 
  private:
   struct Impl;
+  OutofcoreTileMapper(std::unique_ptr<Impl> impl);
   Impl& impl();
   const Impl& impl() const;
   std::unique_ptr<Impl> impl_;

@@ -3,6 +3,7 @@
 
 #include "console_capture.h"
 #include "iwlomap/octree_mapper.h"
+#include "model/checks.h"
 
 #include <octomap/AbstractOcTree.h>
 
@@ -322,8 +323,15 @@ void write_tree(const octomap::OcTree& tree, FileFormat f, const std::string& pa
 }  // namespace detail
 
 void export_octomap(const IMapperBackend& map, const std::string& path) {
+  export_octomap(map, path, map.get_params().occupied_threshold);
+}
+
+void export_octomap(const IMapperBackend& map, const std::string& path, double occupied_threshold) {
   const detail::FileFormat f = detail::format_of(path, "export_octomap");
-  const double threshold = map.get_params().occupied_threshold;
+  if (!(occupied_threshold > 0.0 && occupied_threshold < 1.0))
+    throw std::invalid_argument("iwlomap: export_octomap: " + detail::describe("occupied_threshold", occupied_threshold) +
+                                " is not in (0, 1)");
+  const double threshold = occupied_threshold;
   octomap::OcTree tree(map.get_resolution());
   const float occupied = tree.getClampingThresMaxLog();
   const float free = tree.getClampingThresMinLog();

@@ -54,10 +54,8 @@ int run_export(const std::vector<std::string>& argv) {
   const auto map = open_map(input, static_cast<std::size_t>(cache));
   if (ext == ".bt" || ext == ".ot") {
 #ifdef IWLOMAP_HAVE_OCTOMAP
-    IwloParams p = map->get_params();
-    p.occupied_threshold = threshold;  // .bt stores occupied / free by this threshold
-    map->set_params(p);
-    files.write(*output, [&](const std::string& file) { export_octomap(*map, file); });
+    // .bt stores occupied / free by this threshold
+    files.write(*output, [&](const std::string& file) { export_octomap(*map, file, threshold); });
 #else
     throw std::runtime_error("writing OctoMap files needs the OctoMap layer (build with -DIWLOMAP_WITH_OCTOMAP=ON)");
 #endif

@@ -24,8 +24,8 @@ bool is_map_path(const std::string& path) {
 std::unique_ptr<IMapperBackend> open_map(const std::string& path, std::size_t cache_tiles) {
   std::error_code ec;
   if (std::filesystem::is_directory(path, ec)) {
-    const DiskMapInfo info = OutofcoreTileMapper::read_map_info(path);
-    return std::make_unique<OutofcoreTileMapper>(path, info.resolution, info.tile_size, cache_tiles);
+    // Read-only: no lock, nothing written, so a map can be read while a mapper writes it.
+    return std::make_unique<OutofcoreTileMapper>(OutofcoreTileMapper::open_read_only(path, cache_tiles));
   }
   if (!std::filesystem::exists(path, ec)) throw std::runtime_error("cannot open '" + path + "'");
 #ifdef IWLOMAP_HAVE_OCTOMAP

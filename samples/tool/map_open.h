@@ -15,7 +15,8 @@ namespace iwlomap::tool {
 [[nodiscard]] bool is_map_path(const std::string& path);
 
 /// Opens the map at \p path with its stored resolution: a tile directory as the Disk backend
-/// (\p cache_tiles resident tiles), a .bt/.ot file as the OctoMap backend (needs that layer).
+/// opened read-only (\p cache_tiles resident tiles; nothing in it is locked or written), a .bt/.ot
+/// file as the OctoMap backend (needs that layer).
 /// Throws std::runtime_error (or StorageError) naming the path.
 [[nodiscard]] std::unique_ptr<IMapperBackend> open_map(const std::string& path, std::size_t cache_tiles = 4);
 

@@ -111,6 +111,17 @@ check export_missing_file 1 "$TOOL" export "$WORK/no_such_map.bt" -o "$WORK/x.pc
 check export_no_map_in_dir 1 "$TOOL" export "$WORK" -o "$WORK/x.pcd"
 expect export_no_map_says_so grep -q "holds no iwlomap map" "$WORK/export_no_map_in_dir.err"
 check tiles_only_for_disk 2 "$TOOL" map "$WORK/scan.pcd" --tiles "$WORK/tiles"
+# Reading commands open a tile directory read-only: no file in it changes (the metadata neither,
+# though an export to .bt takes its own threshold).
+listing() { (cd "$1" && find . -type f -printf '%p %s %T@\n' | sort); }
+listing "$WORK/tiles" >"$WORK/tiles_before.txt"
+if has_layer octomap; then
+  check export_tiles_bt_threshold 0 "$TOOL" export "$WORK/tiles" -o "$WORK/exported_06.bt" --threshold 0.6
+fi
+check info_tiles_again 0 "$TOOL" info "$WORK/tiles"
+check export_tiles_again 0 "$TOOL" export "$WORK/tiles" -o "$WORK/exported_again.pcd"
+listing "$WORK/tiles" >"$WORK/tiles_after.txt"
+expect reading_changes_no_tile_file cmp -s "$WORK/tiles_before.txt" "$WORK/tiles_after.txt"
 if has_layer octomap; then
   check export_tiles_bt 0 "$TOOL" export "$WORK/tiles" -o "$WORK/exported.bt"
   check convert_octree_reads_export 0 convert_octree "$WORK/exported.bt" "$WORK/exported.ot"

@@ -167,6 +167,9 @@ class OctreeMapper final : public BackendBase {
 /// known voxel lies outside OctoMap's key range (-32768..32767 per axis), std::runtime_error
 /// naming the path when the file cannot be written.
 void export_octomap(const IMapperBackend& map, const std::string& path);
+/// As above, with \p occupied_threshold, a probability in (0, 1), instead of the map's own for
+/// ".bt" (ignored for ".ot"): for maps whose parameters cannot change (read-only disk maps).
+void export_octomap(const IMapperBackend& map, const std::string& path, double occupied_threshold);
 
 /// Reads an OctoMap file (".bt" or ".ot" by extension) into \p map, whose resolution must match
 /// the file's (to the 6 significant digits OctoMap writes). Every voxel of the file is set with

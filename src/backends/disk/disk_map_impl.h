@@ -42,11 +42,11 @@ struct OutofcoreTileMapper::Impl {
   // Opening: the directory (lock, metadata, tile list), then every tile header; what interrupted
   // writes left behind is removed only once every tile checked out, so an open that fails changes
   // no file.
-  Impl(const std::string& directory, double res, double tile, std::size_t cache_tiles)
+  Impl(const std::string& directory, double res, double tile, std::size_t cache_tiles, bool read_only = false)
       : resolution(res),
         tile_voxels(detail::tile_voxels_for(res, tile)),
         tile_size(static_cast<double>(tile_voxels) * res),
-        dir(directory, res, tile, tile_voxels),
+        dir(directory, res, tile, tile_voxels, read_only),
         store(dir, res, tile_voxels),
         cache(store, cache_tiles, res, tile_voxels, total_known, hit_settings),
         routing(tile_voxels),
@@ -77,6 +77,13 @@ struct OutofcoreTileMapper::Impl {
     hit_settings = {enabled, m.hit_epoch};
     for (const auto& t : cache.resident())
       t->hits = enabled ? std::make_unique<detail::HitAccumulator>(resolution) : nullptr;
+  }
+
+  // Read-only maps refuse every change (open_read_only()): \p what names the call.
+  void check_writable(const char* what) const {
+    if (dir.read_only())
+      throw std::logic_error(std::string("iwlomap: OutofcoreTileMapper::") + what + ": the map in " + dir.path() +
+                             " is open read-only");
   }
 
   ~Impl() {
@@ -359,6 +366,7 @@ struct OutofcoreTileMapper::Impl {
   // staged tiles from the staging file. Every tile is attempted; the first error is rethrown at the
   // end, and a tile that failed keeps its newest state (dirty in RAM, or staged) for a later flush.
   void flush() {
+    if (dir.read_only()) return;  // nothing can be dirty
     std::exception_ptr first_error;
     std::vector<VoxelKey> keys;
     for (const auto& [k, image] : store.images())

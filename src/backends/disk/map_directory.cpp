@@ -201,15 +201,16 @@ MapMeta parse_meta(const std::vector<std::uint8_t>& bytes, const std::string& pa
   return m;
 }
 
-MapDirectory::MapDirectory(std::string directory, double resolution, double tile_size, std::uint32_t tile_voxels)
-    : dir_(std::move(directory)) {
+MapDirectory::MapDirectory(std::string directory, double resolution, double tile_size, std::uint32_t tile_voxels,
+                           bool read_only)
+    : dir_(std::move(directory)), read_only_(read_only) {
   std::error_code ec;
-  fs::create_directories(dir_, ec);
+  if (!read_only) fs::create_directories(dir_, ec);
   if (ec || !fs::is_directory(dir_))
     throw StorageError(StorageError::Kind::kIo, dir_,
                        "iwlomap: cannot use " + dir_ + " as a map directory: " +
-                           (ec ? ec.message() : std::string("it exists and is not a directory")));
-  lock();
+                           (ec ? ec.message() : std::string(read_only ? "it is not a directory" : "it exists and is not a directory")));
+  if (!read_only) lock();
   try {
     for (fs::directory_iterator it(dir_, ec), end; !ec && it != end; it.increment(ec)) {
       std::error_code type_ec;
@@ -241,6 +242,9 @@ MapDirectory::MapDirectory(std::string directory, double resolution, double tile
                                     "), not " + describe("resolution", resolution) + " and tiles of " +
                                     std::to_string(tile_voxels) + " voxels (" + describe("tile_size", tile_size) +
                                     "); open it with the stored values");
+    } else if (read_only) {
+      throw StorageError(StorageError::Kind::kIo, meta_path,
+                         "iwlomap: " + dir_ + " holds no iwlomap map (" + meta_path + " is missing)");
     } else {
       if (!tile_names_.empty())
         throw StorageError(StorageError::Kind::kCorrupt, meta_path,
@@ -253,12 +257,13 @@ MapDirectory::MapDirectory(std::string directory, double resolution, double tile
       write_meta(m);
     }
   } catch (...) {
-    ::close(lock_fd_);
+    if (lock_fd_ >= 0) ::close(lock_fd_);
     throw;
   }
 }
 
 void MapDirectory::write_meta(const MapMeta& meta) {
+  if (read_only_) throw std::logic_error("iwlomap: the map directory " + dir_ + " is open read-only");
   MapMeta m = meta;
   // Version 2 once hit statistics have been on: tiles may hold them, which older builds cannot read.
   m.version = m.hit_statistics || m.hit_epoch != 0 ? 2u : 1u;
@@ -277,6 +282,7 @@ MapDirectory::~MapDirectory() {
 std::string MapDirectory::path_of(const std::string& name) const { return (fs::path(dir_) / name).string(); }
 
 void MapDirectory::remove_leftovers() {
+  if (read_only_) return;  // a writer may have them open
   for (const std::string& name : leftovers_) remove_file(path_of(name));
   leftovers_.clear();
 }

@@ -44,12 +44,14 @@ struct MapMeta {
 /// An open map directory: created (with its parents) when missing, locked against a second
 /// mapper, its metadata read (and checked against the requested geometry) or written, its tile
 /// files listed. Nothing in the directory changes when the constructor throws, but for a
-/// directory it creates and the lock file.
+/// directory it creates and the lock file. Read-only, it creates, locks and writes nothing: the
+/// directory and its metadata must exist.
 class MapDirectory {
  public:
   /// Throws StorageError (kIo, kLocked, kCorrupt, kNewerVersion) naming the file, or
   /// std::invalid_argument when the stored resolution or tile size differ from the requested.
-  MapDirectory(std::string directory, double resolution, double tile_size, std::uint32_t tile_voxels);
+  MapDirectory(std::string directory, double resolution, double tile_size, std::uint32_t tile_voxels,
+               bool read_only = false);
   ~MapDirectory();
   MapDirectory(const MapDirectory&) = delete;
   MapDirectory& operator=(const MapDirectory&) = delete;
@@ -63,6 +65,7 @@ class MapDirectory {
   [[nodiscard]] std::uint64_t meta_bytes() const noexcept { return meta_bytes_; }
   /// The metadata as read or written when the directory was opened, or as last written.
   [[nodiscard]] const MapMeta& meta() const noexcept { return meta_; }
+  [[nodiscard]] bool read_only() const noexcept { return read_only_; }
   /// Replaces the metadata file durably (temporary file, fsync, rename, directory fsync); on
   /// failure the old file stays and StorageError (kIo) names it.
   void write_meta(const MapMeta& meta);
@@ -78,6 +81,7 @@ class MapDirectory {
   void lock();
 
   std::string dir_;
+  bool read_only_ = false;
   int lock_fd_ = -1;
   std::vector<std::string> tile_names_;
   std::vector<std::string> leftovers_;

@@ -20,12 +20,23 @@ OutofcoreTileMapper::OutofcoreTileMapper(const std::string& directory, double re
   impl_ = std::make_unique<Impl>(directory, resolution, tile_size, cache_tiles);
 }
 
+OutofcoreTileMapper::OutofcoreTileMapper(std::unique_ptr<Impl> impl) { impl_ = std::move(impl); }
+
+OutofcoreTileMapper OutofcoreTileMapper::open_read_only(const std::string& directory, size_t cache_tiles) {
+  if (cache_tiles < 1) throw std::invalid_argument("iwlomap: cache_tiles must be >= 1, got cache_tiles = 0");
+  const DiskMapInfo info = read_map_info(directory);
+  return OutofcoreTileMapper(std::make_unique<Impl>(directory, info.resolution, info.tile_size, cache_tiles, true));
+}
+
+bool OutofcoreTileMapper::is_read_only() const { return impl().dir.read_only(); }
+
 IWLOMAP_DEFINE_PIMPL_MEMBERS(OutofcoreTileMapper)
 
 void OutofcoreTileMapper::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                                             const std::vector<bool>& is_occupied) {
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
+  m.check_writable("batch_update_iwlo()");
   m.apply_batch(points, intensities, is_occupied, nullptr);
 }
 
@@ -33,6 +44,7 @@ void OutofcoreTileMapper::batch_update_iwlo(const Eigen::MatrixXd& points, const
                                             const std::vector<bool>& is_occupied, const Eigen::VectorXd& weights) {
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
+  m.check_writable("batch_update_iwlo()");
   m.apply_batch(points, intensities, is_occupied, &weights);
 }
 
@@ -40,17 +52,20 @@ void OutofcoreTileMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen
                                       const Eigen::VectorXd& intensities, double max_range) {
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
+  m.check_writable("insert_scan()");
   m.insert_scan(origin, points, intensities, max_range, get_num_threads());
 }
 
 void OutofcoreTileMapper::set_params(const IwloParams& params) {
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
+  m.check_writable("set_params()");
   m.set_params(params);
 }
 void OutofcoreTileMapper::modify_params(const std::function<void(IwloParams&)>& change) {
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
+  m.check_writable("modify_params()");
   IwloParams p = m.updater.params();
   change(p);
   m.set_params(p);
@@ -59,6 +74,7 @@ void OutofcoreTileMapper::modify_params(const std::function<void(IwloParams&)>& 
 void OutofcoreTileMapper::set_hit_accumulation(bool enabled) {
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
+  m.check_writable("set_hit_accumulation()");
   m.set_hit_accumulation(enabled);
 }
 
@@ -119,6 +135,7 @@ IwloParams OutofcoreTileMapper::get_params() const {
 void OutofcoreTileMapper::set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) {
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
+  m.check_writable("set_log_odds()");
   m.set_log_odds(points, log_odds);
 }
 
@@ -186,6 +203,7 @@ size_t OutofcoreTileMapper::get_num_skipped_points() const {
 void OutofcoreTileMapper::clear() {
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
+  m.check_writable("clear()");
   m.clear();
 }
 
