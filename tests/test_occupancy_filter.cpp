@@ -9,6 +9,7 @@
 #include "reference_api_double.h"
 
 #include <gtest/gtest.h>
+#include <pcl/console/print.h>
 #include <pcl/filters/passthrough.h>
 #include <pcl/filters/voxel_grid.h>
 #include <pcl/io/pcd_io.h>
@@ -384,6 +385,43 @@ TEST(OccupancyFilter, MaxRangeClipsRaysAndDropsTheirHits) {
 }
 
 // ---- recorded data ----
+
+// A cloud whose intensities are all 0 (a converted PointXYZ cloud, OctoMap's example scan): the
+// default (sonar) parameters make every return free space and say so once; the lidar preset maps it.
+TEST(OccupancyFilter, AllZeroIntensitiesWarnOnceAndMapWithTheLidarPreset) {
+  const auto frame1 = make_wall_scan(0.0f, 200, 3);
+  const auto frame2 = make_wall_scan(0.0f, 200, 4);
+  Filter sonar;
+  sonar.setResolution(0.1);
+  Cloud out;
+  const auto verbosity = pcl::console::getVerbosityLevel();
+  pcl::console::setVerbosityLevel(pcl::console::L_WARN);
+  testing::internal::CaptureStderr();
+  for (const auto& f : {frame1, frame2}) {
+    sonar.setInputCloud(f);
+    sonar.filter(out);
+  }
+  const std::string sonar_log = testing::internal::GetCapturedStderr();
+  EXPECT_EQ(out.size(), 0u) << "sonar semantics: no echo above the threshold, no surface";
+  EXPECT_NE(sonar_log.find("setSensorPreset(iwlomap::SensorPreset::kLidar)"), std::string::npos) << sonar_log;
+  EXPECT_EQ(sonar_log.find("kLidar"), sonar_log.rfind("kLidar")) << "one warning per filter: " << sonar_log;
+
+  Filter lidar;
+  lidar.setResolution(0.1);
+  lidar.setSensorPreset(iwlomap::SensorPreset::kLidar);
+  testing::internal::CaptureStderr();
+  for (const auto& f : {frame1, frame2}) {
+    lidar.setInputCloud(f);
+    lidar.filter(out);
+  }
+  const std::string lidar_log = testing::internal::GetCapturedStderr();
+  pcl::console::setVerbosityLevel(verbosity);
+  EXPECT_TRUE(lidar_log.empty()) << lidar_log;
+  EXPECT_GT(out.size(), 50u) << "every return is a hit under the lidar preset";
+  for (const auto& p : out) EXPECT_NEAR(p.x, 2.0f, 0.1f);  // the wall's voxels
+  EXPECT_EQ(lidar.getIwloParams().intensity_threshold,
+            iwlomap::sensor_preset_params(iwlomap::SensorPreset::kLidar).intensity_threshold);
+}
 
 std::filesystem::path data_dir() { return IWLOMAP_SHARED_DATA_DIR; }
 

@@ -67,6 +67,7 @@ int run_map(const std::vector<std::string>& argv) {
   std::size_t points = 0;
   {
     Progress progress("mapping", inputs.size(), !quiet);
+    IntensityWarning warning("map");
     std::optional<AsyncMapper> background;
     if (async) background.emplace(setup.map, ExecutionMode::kParallel, 2);
     for (std::size_t i = 0; i < inputs.size(); ++i) {
@@ -74,6 +75,11 @@ int run_map(const std::vector<std::string>& argv) {
       progress.update(i, name);
       const LoadedCloud in = load_cloud(inputs[i], static_cast<float>(setup.params.intensity_max));
       points += in.cloud->size();
+      if (in.has_intensity) {
+        Eigen::VectorXd intensity(static_cast<Eigen::Index>(in.cloud->size()));
+        for (std::size_t k = 0; k < in.cloud->size(); ++k) intensity[static_cast<Eigen::Index>(k)] = (*in.cloud)[k].intensity;
+        warning.check(inputs[i], intensity, setup.params);
+      }
       if (background) {
         Eigen::MatrixXd xyz;
         Eigen::VectorXd intensity;
@@ -101,7 +107,8 @@ int run_map(const std::vector<std::string>& argv) {
   if (!quiet) {
     std::cout << "mapped " << inputs.size() << " file(s), " << points << " points ("
               << setup.map->get_num_skipped_points() << " skipped) at " << setup.map->get_resolution() << " m, "
-              << setup.map->get_backend_type() << " backend: " << setup.map->get_num_nodes() << " known voxels, "
+              << setup.map->get_backend_type() << " backend, " << sensor_preset_name(setup.sensor)
+              << " preset: " << setup.map->get_num_nodes() << " known voxels, "
               << occupied.size() << " occupied (p > " << setup.params.occupied_threshold << ") in " << seconds
               << " s\n";
     for (const std::string& written : files.paths()) std::cout << "wrote " << written << "\n";

@@ -1,9 +1,12 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "map_options.h"
 
+#include "progress.h"
+
 #include <iwlomap/outofcore_tile_mapper.h>
 
 #include <algorithm>
+#include <iostream>
 #include <filesystem>
 #include <cctype>
 
@@ -34,9 +37,12 @@ map:
   --tile-size M             disk backend: tile edge in metres, rounded to whole blocks of 8 voxels
                             (default 10; 'iwlomap info DIR' prints the size in use)
   --cache-tiles N           disk backend: tiles kept in RAM (default 16)
-)") + ray_options + R"(  --sensor sonar|lidar      preset: sonar keeps the defaults (an echo at or below the intensity
-                            threshold is free space); lidar sets --intensity-threshold 0, so every
-                            return is a hit weighted by its intensity. Options below override it.
+)") + ray_options + R"(  --sensor sonar|lidar|depth  preset (default sonar, the reference defaults: an echo at or below
+                            the intensity threshold is free space); lidar: every return is a hit
+                            weighted by its intensity, however dark, and moved obstacles clear
+                            after 7 free observations as in OctoMap; depth: as lidar with every
+                            return full weight. The options below override the preset; the
+                            defaults in brackets are the sonar preset's.
   --threshold P             output voxels with occupancy probability > P (default )" + num(d.occupied_threshold) + R"()
   --threads N               threads for ray casting (default 1; 0 = all cores); same map for any N
 
@@ -51,10 +57,10 @@ IWLO parameters (defaults in brackets):
 MapSetup map_setup_from(const Args& args) {
   MapSetup s;
   const std::string sensor = args.value("--sensor").value_or("sonar");
-  if (sensor == "lidar")
-    s.params.intensity_threshold = 0.0;
-  else if (sensor != "sonar")
-    throw UsageError("--sensor must be sonar or lidar, got '" + sensor + "'");
+  const auto preset = parse_sensor_preset(sensor);
+  if (!preset) throw UsageError("--sensor must be sonar, lidar or depth, got '" + sensor + "'");
+  s.sensor = *preset;
+  s.params = sensor_preset_params(*preset);
   IwloParams& p = s.params;
   p.sharpness = args.number("--sharpness", p.sharpness);
   p.decay_rate = args.number("--decay-rate", p.decay_rate);
@@ -65,7 +71,7 @@ MapSetup map_setup_from(const Args& args) {
   p.log_odds_free = args.number("--l-free", p.log_odds_free);
   p.intensity_threshold = args.number("--intensity-threshold", p.intensity_threshold);
   p.intensity_max = args.number("--intensity-max", p.intensity_max);
-  p.adaptive_enabled = !args.flag("--no-adaptive");
+  if (args.flag("--no-adaptive")) p.adaptive_enabled = false;
   p.adaptive_threshold = args.number("--adaptive-threshold", p.adaptive_threshold);
   p.adaptive_max_ratio = args.number("--adaptive-max-ratio", p.adaptive_max_ratio);
   p.occupied_threshold = args.number("--threshold", p.occupied_threshold);
@@ -111,6 +117,15 @@ MapSetup map_setup_from(const Args& args) {
   s.map->set_params(p);
   s.map->set_num_threads(static_cast<int>(threads));
   return s;
+}
+
+void IntensityWarning::check(const std::string& file, const Eigen::VectorXd& intensities, const IwloParams& params) {
+  if (warned_) return;
+  const IntensityCheck c = check_intensities(intensities, params);
+  if (!c.thins_map()) return;
+  show_status(true, "");  // on a line of its own, not after a progress bar
+  std::cerr << "iwlomap " << command_ << ": warning: " << file << ": " << c.advice() << " (--sensor lidar)\n";
+  warned_ = true;
 }
 
 }  // namespace iwlomap::tool

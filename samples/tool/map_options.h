@@ -8,6 +8,7 @@
 
 #include <iwlomap/iwlo.h>
 #include <iwlomap/mapper_backend.h>
+#include <iwlomap/sensor_preset.h>
 
 #include <memory>
 #include <set>
@@ -18,6 +19,7 @@ namespace iwlomap::tool {
 struct MapSetup {
   std::shared_ptr<IMapperBackend> map;
   IwloParams params;
+  SensorPreset sensor = SensorPreset::kSonar;
   bool ray_casting = true;
   double max_range = -1.0;
 };
@@ -30,5 +32,17 @@ struct MapSetup {
 
 /// Builds the backend and parameters the options ask for (preset first, explicit options over it).
 [[nodiscard]] MapSetup map_setup_from(const Args& args);
+
+/// Warns once per run, on stderr, when a cloud's intensities do not suit the parameters (most of
+/// its points would be free space: check_intensities()), naming the file and the preset to use.
+class IntensityWarning {
+ public:
+  explicit IntensityWarning(const char* command) : command_(command) {}
+  void check(const std::string& file, const Eigen::VectorXd& intensities, const IwloParams& params);
+
+ private:
+  const char* command_;
+  bool warned_ = false;
+};
 
 }  // namespace iwlomap::tool

@@ -7,6 +7,7 @@
 
 #include <iwlomap/iwlo.h>
 #include <iwlomap/mapper_backend.h>
+#include <iwlomap/sensor_preset.h>
 
 #include <pcl/filters/filter.h>
 #include <pcl/point_cloud.h>
@@ -66,6 +67,15 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   void setIwloParams(const IwloParams& params);
   [[nodiscard]] const IwloParams& getIwloParams() const { return params_; }
 
+  /// Sets every IWLO parameter to those of \p preset (sensor_preset_params()), applied to the map
+  /// at the next filter(). The default parameters are the reference API's, kSonar: an echo at or
+  /// below intensity_threshold (35) is free space. For lidar clouds use kLidar (every return is a
+  /// hit, however dark; moved obstacles clear as in OctoMap), for depth cameras kDepthCamera. When
+  /// a frame's intensities do not suit the parameters (more than 90 % of its points at or below
+  /// the threshold, or all equal and at or below it), filter() logs one PCL_WARN naming the
+  /// preset to use, once per filter.
+  void setSensorPreset(SensorPreset preset) { setIwloParams(sensor_preset_params(preset)); }
+
   /// Probability above which a voxel is output (default 0.7, in (0, 1)).
   void setOccupiedThreshold(double threshold);
   [[nodiscard]] double getOccupiedThreshold() const { return params_.occupied_threshold; }
@@ -114,6 +124,7 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   int num_threads_ = 1;
   bool threads_pending_ = false;  // apply num_threads_ to the map at the next filter()
   bool mean_positions_ = false;
+  bool intensity_warned_ = false;  // the PCL_WARN of setSensorPreset() was logged
 };
 
 }  // namespace iwlomap

@@ -7,6 +7,8 @@
 
 #include <iwlomap/probability_updater.h>
 
+#include <pcl/console/print.h>
+
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -94,6 +96,20 @@ void OccupancyFilter<PointT>::ensureMap() {
 template <typename PointT>
 void OccupancyFilter<PointT>::applyFilter(PointCloud& output) {
   ensureMap();
+  if (!intensity_warned_) {
+    const IwloParams p = map_->get_params();
+    const std::size_t n = indices_ ? indices_->size() : input_->size();
+    Eigen::VectorXd intensities(static_cast<Eigen::Index>(n));
+    for (std::size_t i = 0; i < n; ++i)
+      intensities[static_cast<Eigen::Index>(i)] =
+          point_intensity((*input_)[indices_ ? static_cast<std::size_t>((*indices_)[i]) : i], p.intensity_max);
+    const IntensityCheck check = check_intensities(intensities, p);
+    if (check.thins_map()) {
+      PCL_WARN("[iwlomap::%s::applyFilter] %s: setSensorPreset(iwlomap::SensorPreset::kLidar)\n", filter_name_.c_str(),
+               check.advice().c_str());
+      intensity_warned_ = true;
+    }
+  }
   integrate_cloud(*map_, *input_, indices_.get(), ray_casting_, max_range_);
   occupied_to_cloud(*map_, params_.occupied_threshold, output, mean_positions_);
 }

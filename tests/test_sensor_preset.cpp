@@ -1,0 +1,130 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// Sensor presets through the public API: what a single dark return gives, how fast a moved
+// obstacle clears, and the intensity check that warns when a cloud does not suit the parameters.
+#include "iwlomap/probability_updater.h"
+#include "iwlomap/sensor_preset.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <string>
+
+namespace iwlomap {
+namespace {
+
+double probability_of(ProbabilityUpdater& map, const Eigen::Vector3d& p) {
+  const auto v = map.query(p);
+  return v ? v->probability : 0.5;
+}
+
+// A map with \p params after one scan of one point at \p intensity, 3 m from the sensor.
+double single_return(const IwloParams& params, double intensity) {
+  ProbabilityUpdater map(0.1);
+  map.set_params(params);
+  Eigen::MatrixXd point(1, 3);
+  point << 3.05, 0.05, 0.05;
+  map.insert_scan(Eigen::Vector3d(0.05, 0.05, 0.05), point, Eigen::VectorXd::Constant(1, intensity), -1.0);
+  return probability_of(map, Eigen::Vector3d(3.05, 0.05, 0.05));
+}
+
+// Free observations after \p hits hits until the voxel is no longer occupied (p <= 0.7).
+int free_observations_to_clear(const IwloParams& params, int hits) {
+  ProbabilityUpdater map(0.1);
+  map.set_params(params);
+  Eigen::MatrixXd point(1, 3);
+  point << 1.05, 1.05, 1.05;
+  const Eigen::VectorXd bright = Eigen::VectorXd::Constant(1, 200.0);
+  for (int i = 0; i < hits; ++i) map.batch_update_iwlo(point, bright, {true});
+  int n = 0;
+  while (probability_of(map, point.row(0).transpose()) > params.occupied_threshold && n < 1000) {
+    map.batch_update_iwlo(point, bright, {false});
+    ++n;
+  }
+  return n;
+}
+
+// OctoMap's own count with its defaults (hit 0.7, miss 0.4, clamping at 0.97), the same rule.
+int octomap_free_observations_to_clear(int hits) {
+  const double hit = std::log(0.7 / 0.3), miss = std::log(0.4 / 0.6), top = std::log(0.97 / 0.03);
+  double l = 0.0;
+  for (int i = 0; i < hits; ++i) l = std::min(top, l + hit);
+  int n = 0;
+  while (1.0 / (1.0 + std::exp(-l)) > 0.7) {
+    l += miss;
+    ++n;
+  }
+  return n;
+}
+
+TEST(SensorPreset, SonarIsTheReferenceDefaults) {
+  const IwloParams s = sensor_preset_params(SensorPreset::kSonar), d;
+  EXPECT_EQ(s.intensity_threshold, d.intensity_threshold);
+  EXPECT_EQ(s.L_max, d.L_max);
+  EXPECT_EQ(s.log_odds_free, d.log_odds_free);
+  EXPECT_EQ(s.adaptive_enabled, d.adaptive_enabled);
+  EXPECT_EQ(s.occupied_threshold, d.occupied_threshold);
+}
+
+TEST(SensorPreset, LidarMakesASingleDarkReturnOccupiedWhereSonarDoesNot) {
+  for (double intensity : {0.0, 1.0, 20.0}) {
+    EXPECT_GT(single_return(sensor_preset_params(SensorPreset::kLidar), intensity), 0.7) << intensity;
+    EXPECT_GT(single_return(sensor_preset_params(SensorPreset::kDepthCamera), intensity), 0.7) << intensity;
+    EXPECT_LT(single_return(sensor_preset_params(SensorPreset::kSonar), intensity), 0.5) << intensity;
+  }
+  EXPECT_GT(single_return(sensor_preset_params(SensorPreset::kSonar), 200.0), 0.7);
+}
+
+TEST(SensorPreset, LidarClearsAMovedObstacleAsFastAsOctoMap) {
+  const int octomap = octomap_free_observations_to_clear(20);
+  EXPECT_EQ(octomap, 7);
+  const int lidar = free_observations_to_clear(sensor_preset_params(SensorPreset::kLidar), 20);
+  EXPECT_LE(lidar, 8);
+  EXPECT_LE(lidar, octomap);
+  EXPECT_EQ(free_observations_to_clear(sensor_preset_params(SensorPreset::kDepthCamera), 20), lidar);
+  // The sonar defaults keep a settled voxel far longer (speckle must not erase the seabed).
+  EXPECT_GT(free_observations_to_clear(sensor_preset_params(SensorPreset::kSonar), 20), 3 * lidar);
+}
+
+TEST(SensorPreset, DepthCameraWeighsEveryReturnAlike) {
+  const IwloParams p = sensor_preset_params(SensorPreset::kDepthCamera);
+  EXPECT_EQ(single_return(p, 0.0), single_return(p, 255.0));
+  const IwloParams l = sensor_preset_params(SensorPreset::kLidar);
+  EXPECT_LT(single_return(l, 0.0), single_return(l, 255.0));
+}
+
+TEST(SensorPreset, NamesRoundTrip) {
+  for (SensorPreset p : {SensorPreset::kSonar, SensorPreset::kLidar, SensorPreset::kDepthCamera})
+    EXPECT_EQ(parse_sensor_preset(sensor_preset_name(p)), p);
+  EXPECT_FALSE(parse_sensor_preset("radar"));
+}
+
+TEST(IntensityCheck, FlagsCloudsTheParametersWouldTurnIntoFreeSpace) {
+  const IwloParams sonar = sensor_preset_params(SensorPreset::kSonar);
+  const IwloParams lidar = sensor_preset_params(SensorPreset::kLidar);
+  const Eigen::VectorXd zeros = Eigen::VectorXd::Zero(100);
+  IntensityCheck c = check_intensities(zeros, sonar);
+  EXPECT_EQ(c.points, 100u);
+  EXPECT_EQ(c.at_or_below_threshold, 100u);
+  EXPECT_TRUE(c.all_equal);
+  EXPECT_TRUE(c.thins_map());
+  EXPECT_NE(c.advice().find("lidar"), std::string::npos) << c.advice();
+  EXPECT_FALSE(check_intensities(zeros, lidar).thins_map());
+
+  Eigen::VectorXd mostly_dark = Eigen::VectorXd::Constant(100, 10.0);
+  mostly_dark.head(5).setConstant(200.0);  // 95 % at or below 35
+  EXPECT_TRUE(check_intensities(mostly_dark, sonar).thins_map());
+  mostly_dark.head(15).setConstant(200.0);  // 85 %
+  EXPECT_FALSE(check_intensities(mostly_dark, sonar).thins_map());
+  EXPECT_TRUE(check_intensities(mostly_dark, sonar).advice().empty());
+
+  Eigen::VectorXd bright_equal = Eigen::VectorXd::Constant(10, 200.0);
+  bright_equal[3] = std::nan("");
+  c = check_intensities(bright_equal, sonar);
+  EXPECT_EQ(c.points, 9u);
+  EXPECT_TRUE(c.all_equal);
+  EXPECT_FALSE(c.thins_map());  // equal but above the threshold: every point is a hit
+  EXPECT_FALSE(check_intensities(Eigen::VectorXd(), sonar).thins_map());
+}
+
+}  // namespace
+}  // namespace iwlomap
