@@ -17,11 +17,14 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <functional>
 #include <limits>
 #include <map>
 #include <random>
 #include <set>
 #include <tuple>
+#include <utility>
+#include <vector>
 
 namespace {
 
@@ -421,6 +424,125 @@ TEST(OccupancyFilter, AllZeroIntensitiesWarnOnceAndMapWithTheLidarPreset) {
   for (const auto& p : out) EXPECT_NEAR(p.x, 2.0f, 0.1f);  // the wall's voxels
   EXPECT_EQ(lidar.getIwloParams().intensity_threshold,
             iwlomap::sensor_preset_params(iwlomap::SensorPreset::kLidar).intensity_threshold);
+}
+
+// An organised frame seen from the origin: a wall at x = 4 m (20 x 10 points), and, when
+// \p with_box, a box face at x = 2 m in front of its middle (the wall points behind it hidden).
+// Returns the frame and the indices of the box's points.
+std::pair<Cloud::Ptr, std::vector<int>> wall_frame(bool with_box) {
+  Cloud::Ptr c(new Cloud);
+  c->width = 20;
+  c->height = 10;
+  c->is_dense = true;
+  c->resize(200);
+  std::vector<int> box;
+  for (int row = 0; row < 10; ++row)
+    for (int col = 0; col < 20; ++col) {
+      const float y = -1.0f + 0.1f * static_cast<float>(col) + 0.05f;
+      const float z = -0.5f + 0.1f * static_cast<float>(row) + 0.05f;
+      const bool hidden = with_box && std::abs(y) < 0.35f && std::abs(z) < 0.25f;
+      pcl::PointXYZI& p = (*c)[static_cast<std::size_t>(row * 20 + col)];
+      p.x = hidden ? 2.0f : 4.0f;
+      p.y = hidden ? y / 2.0f : y;  // on the ray towards the hidden wall point
+      p.z = hidden ? z / 2.0f : z;
+      p.intensity = 100.0f;
+      if (hidden) box.push_back(row * 20 + col);
+    }
+  c->sensor_origin_ = Eigen::Vector4f::Zero();
+  return {c, box};
+}
+
+// Input-points mode: a box that appears in space the map saw free for ten frames is transient
+// on first sight: its points are removed, the static wall's kept, every field untouched.
+TEST(OccupancyFilter, InputPointsModeRemovesAnObjectInSpaceSeenFree) {
+  Filter f(/*extract_removed_indices=*/true);
+  f.setResolution(0.1);
+  f.setSensorPreset(iwlomap::SensorPreset::kLidar);
+  f.setOutputMode(iwlomap::OutputMode::kInputPoints);
+  EXPECT_EQ(f.getOutputMode(), iwlomap::OutputMode::kInputPoints);
+  Cloud out;
+  for (int k = 0; k < 10; ++k) {
+    f.setInputCloud(wall_frame(false).first);
+    f.filter(out);
+  }
+  EXPECT_EQ(out.size(), 200u) << "the static wall is kept whole";
+  EXPECT_TRUE(f.getRemovedIndices()->empty());
+
+  const auto [frame, box] = wall_frame(true);
+  ASSERT_EQ(box.size(), 35u);
+  f.setInputCloud(frame);
+  f.filter(out);
+  EXPECT_EQ(out.size(), 200u - box.size());
+  EXPECT_EQ(*f.getRemovedIndices(), box);
+  for (const auto& p : out) {
+    EXPECT_EQ(p.x, 4.0f) << "only wall points are kept";
+    EXPECT_EQ(p.intensity, 100.0f) << "fields untouched";
+  }
+  EXPECT_EQ(out.height, 1u);
+
+  // Negative: the removed points instead.
+  f.setNegative(true);
+  f.setInputCloud(frame);
+  f.filter(out);
+  EXPECT_EQ(out.size(), box.size());
+  for (const auto& p : out) EXPECT_EQ(p.x, 2.0f);
+
+  // Organised: the input's layout, the removed points NaN.
+  f.setNegative(false);
+  f.setKeepOrganized(true);
+  f.setInputCloud(frame);
+  f.filter(out);
+  ASSERT_EQ(out.width, 20u);
+  ASSERT_EQ(out.height, 10u);
+  EXPECT_FALSE(out.is_dense);
+  for (int i = 0; i < 200; ++i) {
+    const bool removed = std::find(box.begin(), box.end(), i) != box.end();
+    EXPECT_EQ(std::isnan(out[static_cast<std::size_t>(i)].x), removed) << i;
+    if (!removed) {
+      EXPECT_EQ(out[static_cast<std::size_t>(i)].x, (*frame)[static_cast<std::size_t>(i)].x);
+    }
+  }
+}
+
+// Every precompiled point type maps, and input-points mode keeps each type's own fields.
+template <class PointT>
+void expect_point_type_maps(const std::function<void(PointT&, int)>& fill, const std::function<bool(const PointT&, int)>& same) {
+  auto c = pcl::make_shared<pcl::PointCloud<PointT>>();
+  for (int i = 0; i < 100; ++i) {
+    PointT p;
+    p.x = 2.0f;
+    p.y = -0.5f + 0.01f * static_cast<float>(i);
+    p.z = 0.05f;
+    fill(p, i);
+    c->push_back(p);
+  }
+  iwlomap::OccupancyFilter<PointT> f;
+  f.setResolution(0.1);
+  f.setInputCloud(c);
+  pcl::PointCloud<PointT> voxels;
+  f.filter(voxels);
+  EXPECT_GE(voxels.size(), 10u);
+  f.setOutputMode(iwlomap::OutputMode::kInputPoints);
+  pcl::PointCloud<PointT> kept;
+  f.filter(kept);
+  ASSERT_EQ(kept.size(), c->size());
+  for (std::size_t i = 0; i < kept.size(); ++i) EXPECT_TRUE(same(kept[i], static_cast<int>(i))) << i;
+}
+
+TEST(OccupancyFilter, EveryPrecompiledPointTypeMaps) {
+  expect_point_type_maps<pcl::PointXYZRGB>(
+      [](pcl::PointXYZRGB& p, int i) { p.r = static_cast<std::uint8_t>(i); p.g = 7; p.b = 9; },
+      [](const pcl::PointXYZRGB& p, int i) { return p.r == i && p.g == 7 && p.b == 9; });
+  expect_point_type_maps<pcl::PointXYZRGBA>(
+      [](pcl::PointXYZRGBA& p, int i) { p.r = static_cast<std::uint8_t>(i); p.a = 200; },
+      [](const pcl::PointXYZRGBA& p, int i) { return p.r == i && p.a == 200; });
+  expect_point_type_maps<pcl::PointXYZL>([](pcl::PointXYZL& p, int i) { p.label = static_cast<std::uint32_t>(1000 + i); },
+                                         [](const pcl::PointXYZL& p, int i) { return p.label == 1000u + static_cast<std::uint32_t>(i); });
+  expect_point_type_maps<pcl::PointXYZ>([](pcl::PointXYZ&, int) {}, [](const pcl::PointXYZ& p, int) { return p.x == 2.0f; });
+  expect_point_type_maps<pcl::PointXYZI>([](pcl::PointXYZI& p, int) { p.intensity = 150.0f; },
+                                         [](const pcl::PointXYZI& p, int) { return p.intensity == 150.0f; });
+  expect_point_type_maps<pcl::PointXYZINormal>([](pcl::PointXYZINormal& p, int) { p.intensity = 150.0f; p.normal_x = 1.0f; },
+                                               [](const pcl::PointXYZINormal& p, int) { return p.normal_x == 1.0f; });
 }
 
 std::filesystem::path data_dir() { return IWLOMAP_SHARED_DATA_DIR; }

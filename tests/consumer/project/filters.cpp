@@ -35,5 +35,24 @@ int main() {
   pcl::PointCloud<pcl::PointXYZI> out;
   grid.filter(out);
   std::cout << "consumer: " << occupied->size() << " occupied voxels, " << out.size() << " after the voxel grid\n";
+#ifdef PCL_NO_PRECOMPILE
+  // A point type the library does not precompile: the header brings the implementation along.
+  pcl::PointCloud<pcl::PointWithViewpoint> with_viewpoint;
+  for (const auto& p : *cloud) {
+    pcl::PointWithViewpoint q;
+    q.x = p.x;
+    q.y = p.y;
+    q.z = p.z;
+    with_viewpoint.push_back(q);
+  }
+  with_viewpoint.sensor_origin_ = cloud->sensor_origin_;
+  iwlomap::OccupancyFilter<pcl::PointWithViewpoint> any_type;
+  any_type.setResolution(0.1);
+  any_type.setInputCloud(pcl::make_shared<pcl::PointCloud<pcl::PointWithViewpoint>>(with_viewpoint));
+  pcl::PointCloud<pcl::PointWithViewpoint> any_out;
+  any_type.filter(any_out);
+  std::cout << "consumer: PointWithViewpoint (PCL_NO_PRECOMPILE): " << any_out.size() << " occupied voxels\n";
+  if (any_out.size() != occupied->size()) return 1;
+#endif
   return occupied->size() >= 15 && !out.empty() ? 0 : 1;
 }

@@ -18,6 +18,18 @@
 
 namespace iwlomap {
 
+/// What OccupancyFilter::filter() outputs.
+enum class OutputMode {
+  /// The occupied voxels of the whole map so far, one point per voxel (the default).
+  kMap,
+  /// The input points (within setIndices()) that lie in occupied voxels after this frame was
+  /// integrated, with all their fields untouched: a transient point (a moving object in space the
+  /// map has seen free, speckle) is removed, so the filter cleans each frame.
+  /// getRemovedIndices() (construct with extract_removed_indices = true), setNegative() and
+  /// setKeepOrganized() work as for PCL's index filters.
+  kInputPoints,
+};
+
 /// Integrates clouds into an occupancy map, one call of filter() per frame, and outputs the map's
 /// occupied voxels.
 ///
@@ -28,15 +40,20 @@ namespace iwlomap {
 /// `intensity` field (e.g. pcl::PointXYZ) gives every point the intensity `intensity_max`, so every
 /// point is a full-weight hit.
 ///
-/// Output: one point per occupied voxel of the whole map (all frames so far), at the voxel centre
+/// Output (OutputMode::kMap, the default; see OutputMode::kInputPoints for the other): one point
+/// per occupied voxel of the whole map (all frames so far), at the voxel centre
 /// (or at the mean of the hits that fell in it, setOutputMeanPositions());
 /// `intensity` (where the type has it) is the occupancy probability in (threshold, 1]. The output
 /// is unorganised (height 1) and dense; header, sensor origin and orientation are the input's.
 /// An empty input integrates nothing and returns the current map. In-place use
 /// (`f.filter(*cloud)` with `cloud` the input) works.
 ///
-/// Instantiated for pcl::PointXYZI, pcl::PointXYZINormal and pcl::PointXYZ; other point types
-/// compile by including `iwlomap/filters/impl/occupancy_filter.hpp`.
+/// Precompiled for pcl::PointXYZI, PointXYZINormal, PointXYZ, PointXYZRGB, PointXYZRGBA and
+/// PointXYZL; any other point type with x, y and z compiles by including
+/// `iwlomap/filters/impl/occupancy_filter.hpp`, which this header includes itself when
+/// PCL_NO_PRECOMPILE is defined (PCL's convention). Types without an intensity field count every
+/// point as a full-weight hit; in OutputMode::kMap the output points carry no colour or label (a
+/// voxel has none), in OutputMode::kInputPoints every field of a kept point is the input's.
 template <typename PointT>
 class OccupancyFilter : public pcl::Filter<PointT> {
   using PointCloud = typename pcl::Filter<PointT>::PointCloud;
@@ -45,7 +62,9 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   using Ptr = std::shared_ptr<OccupancyFilter<PointT>>;
   using ConstPtr = std::shared_ptr<const OccupancyFilter<PointT>>;
 
-  OccupancyFilter();
+  /// \param extract_removed_indices keep the indices of the input points kInputPoints mode
+  ///        removes, for getRemovedIndices() (as PCL's filters)
+  explicit OccupancyFilter(bool extract_removed_indices = false);
 
   /// Voxel edge in metres (default 0.05) of the map created on first use. Throws
   /// std::invalid_argument for a value <= 0 or not finite, std::logic_error once a map exists with
@@ -75,6 +94,17 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   /// the threshold, or all equal and at or below it), filter() logs one PCL_WARN naming the
   /// preset to use, once per filter.
   void setSensorPreset(SensorPreset preset) { setIwloParams(sensor_preset_params(preset)); }
+
+  /// kMap (default) or kInputPoints (see OutputMode).
+  void setOutputMode(OutputMode mode) { output_mode_ = mode; }
+  [[nodiscard]] OutputMode getOutputMode() const { return output_mode_; }
+  /// kInputPoints: output the points that would be removed instead of those kept (off by default).
+  void setNegative(bool negative) { negative_ = negative; }
+  [[nodiscard]] bool getNegative() const { return negative_; }
+  /// kInputPoints: keep the input's size and organisation, the removed points set to NaN in x, y
+  /// and z (off by default: removed points are left out).
+  void setKeepOrganized(bool keep) { keep_organized_ = keep; }
+  [[nodiscard]] bool getKeepOrganized() const { return keep_organized_; }
 
   /// Probability above which a voxel is output (default 0.7, in (0, 1)).
   void setOccupiedThreshold(double threshold);
@@ -108,12 +138,15 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   using pcl::Filter<PointT>::filter_name_;
   using pcl::Filter<PointT>::input_;
   using pcl::Filter<PointT>::indices_;
+  using pcl::Filter<PointT>::removed_indices_;
+  using pcl::Filter<PointT>::extract_removed_indices_;
 
   /// Integrates input_ (restricted to indices_) into the map and writes its occupied voxels.
   void applyFilter(PointCloud& output) override;
 
  private:
   void ensureMap();
+  void outputInputPoints(PointCloud& output);
 
   std::shared_ptr<IMapperBackend> map_;
   double resolution_ = 0.05;
@@ -125,6 +158,13 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   bool threads_pending_ = false;  // apply num_threads_ to the map at the next filter()
   bool mean_positions_ = false;
   bool intensity_warned_ = false;  // the PCL_WARN of setSensorPreset() was logged
+  OutputMode output_mode_ = OutputMode::kMap;
+  bool negative_ = false;
+  bool keep_organized_ = false;
 };
 
 }  // namespace iwlomap
+
+#ifdef PCL_NO_PRECOMPILE
+#include "iwlomap/filters/impl/occupancy_filter.hpp"
+#endif

@@ -10,12 +10,15 @@
 #include <pcl/console/print.h>
 
 #include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
 #include <stdexcept>
 #include <string>
 
 namespace iwlomap {
 template <typename PointT>
-OccupancyFilter<PointT>::OccupancyFilter() {
+OccupancyFilter<PointT>::OccupancyFilter(bool extract_removed_indices) : pcl::Filter<PointT>(extract_removed_indices) {
   filter_name_ = "OccupancyFilter";
 }
 
@@ -111,7 +114,58 @@ void OccupancyFilter<PointT>::applyFilter(PointCloud& output) {
     }
   }
   integrate_cloud(*map_, *input_, indices_.get(), ray_casting_, max_range_);
-  occupied_to_cloud(*map_, params_.occupied_threshold, output, mean_positions_);
+  if (output_mode_ == OutputMode::kInputPoints)
+    outputInputPoints(output);
+  else
+    occupied_to_cloud(*map_, params_.occupied_threshold, output, mean_positions_);
+}
+
+template <typename PointT>
+void OccupancyFilter<PointT>::outputInputPoints(PointCloud& output) {
+  const double threshold = map_->get_params().occupied_threshold;
+  const PointCloud& in = *input_;
+  const std::size_t n = indices_ ? indices_->size() : in.size();
+  removed_indices_->clear();
+  std::vector<bool> keep(n, false);
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto index = indices_ ? static_cast<std::size_t>((*indices_)[i]) : i;
+    const PointT& p = in[index];
+    bool occupied = false;
+    if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z)) {
+      const auto state = map_->query(Eigen::Vector3d(p.x, p.y, p.z));
+      occupied = state && state->probability > threshold;
+    }
+    // A non-finite point lies in no voxel: it is removed in both modes.
+    keep[i] = occupied != negative_ && std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z);
+    if (!keep[i] && extract_removed_indices_) removed_indices_->push_back(static_cast<pcl::index_t>(index));
+  }
+  const auto header = in.header;
+  const auto origin = in.sensor_origin_;
+  const auto orientation = in.sensor_orientation_;
+  if (keep_organized_) {
+    // The input's layout; a point not kept becomes NaN (in-place use: output may be the input).
+    PointCloud out = in;
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    std::vector<bool> kept_index(in.size(), indices_ ? false : true);
+    for (std::size_t i = 0; i < n; ++i)
+      kept_index[indices_ ? static_cast<std::size_t>((*indices_)[i]) : i] = keep[i];
+    for (std::size_t j = 0; j < out.size(); ++j)
+      if (!kept_index[j]) out[j].x = out[j].y = out[j].z = nan;
+    out.is_dense = false;
+    output = std::move(out);
+  } else {
+    PointCloud out;
+    out.reserve(n);
+    for (std::size_t i = 0; i < n; ++i)
+      if (keep[i]) out.push_back(in[indices_ ? static_cast<std::size_t>((*indices_)[i]) : i]);
+    out.width = static_cast<std::uint32_t>(out.size());
+    out.height = 1;
+    out.is_dense = true;
+    output = std::move(out);
+  }
+  output.header = header;
+  output.sensor_origin_ = origin;
+  output.sensor_orientation_ = orientation;
 }
 
 }  // namespace iwlomap
