@@ -69,7 +69,7 @@ int main(int argc, char** argv) {
       return 1;
     }
     iwlomap::IwloParams lidar;
-    lidar.intensity_threshold = 0.0;  // the tool's lidar preset: every return is a hit
+    lidar.intensity_threshold = 0.0;  // every return with a positive intensity is a hit
 
     Eigen::MatrixXd points;
     Eigen::VectorXd intensities;

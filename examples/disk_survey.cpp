@@ -8,6 +8,7 @@
 // Each scan is the synthetic lidar scan moved 12 m further along x, so the survey covers a strip
 // of SCANS x 12 m; a cache of 4 tiles of ~6.4 m holds a fraction of it.
 #include <iwlomap/outofcore_tile_mapper.h>
+#include <iwlomap/sensor_preset.h>
 #include <iwlomap/synthetic_scan.h>
 
 #include <cstdlib>
@@ -29,9 +30,8 @@ int main(int argc, char** argv) {
     // 0.1 m voxels, tiles of 6.4 m (64 voxels), at most 4 tiles in RAM. An existing map in DIR
     // is continued (with the parameters stored in it).
     iwlomap::OutofcoreTileMapper map(dir, 0.1, 6.4, 4);
-    iwlomap::IwloParams params = map.get_params();
-    params.intensity_threshold = 0.0;  // lidar: every return is a hit
-    map.set_params(params);            // stored in the map directory
+    // Lidar: every return is a hit (stored in the map directory).
+    map.set_params(iwlomap::sensor_preset_params(iwlomap::SensorPreset::kLidar));
     for (int i = 0; i < scans; ++i) {
       const Eigen::Vector3d shift(12.0 * i, 0.0, 0.0);
       map.insert_scan(scan.origin + shift, scan.points.rowwise() + shift.transpose(), scan.intensities, 25.0);

@@ -50,9 +50,7 @@ int main(int argc, char** argv) {
   iwlomap::OccupancyFilter<pcl::PointXYZI> occupancy;  // one map across all frames
   occupancy.setResolution(0.1);
   occupancy.setMaxRange(30.0);
-  iwlomap::IwloParams params;
-  params.intensity_threshold = 0.0;  // lidar: every return is a hit
-  occupancy.setIwloParams(params);
+  occupancy.setSensorPreset(iwlomap::SensorPreset::kLidar);  // every return is a hit
 
   pcl::VoxelGrid<pcl::PointXYZI> coarse;
   coarse.setLeafSize(0.5f, 0.5f, 0.5f);

@@ -4,10 +4,11 @@
 //
 //   ram_map_from_pcd SCAN.pcd [MORE.pcd...]
 //
-// Points are taken in the map frame as stored, in metres; the lidar preset (every return with a
-// positive intensity is a hit, weighted by its intensity) suits lidar scans.
+// Points are taken in the map frame as stored, in metres; the lidar preset (every return is a
+// hit, however dark, weighted by its intensity) suits lidar scans.
 #include <iwlomap/filters/cloud_conversions.h>
 #include <iwlomap/probability_updater.h>
+#include <iwlomap/sensor_preset.h>
 
 #include <pcl/io/pcd_io.h>
 #include <pcl/point_types.h>
@@ -20,9 +21,8 @@ int main(int argc, char** argv) {
     return 2;
   }
   iwlomap::ProbabilityUpdater map(0.1);  // 10 cm voxels
-  iwlomap::IwloParams params;            // the reference defaults, except:
-  params.intensity_threshold = 0.0;      // lidar: every return is a hit
-  map.set_params(params);
+  const iwlomap::IwloParams params = iwlomap::sensor_preset_params(iwlomap::SensorPreset::kLidar);
+  map.set_params(params);                // lidar: every return is a hit, however dark
 
   for (int i = 1; i < argc; ++i) {
     pcl::PointCloud<pcl::PointXYZI> cloud;

@@ -4,6 +4,7 @@
 //
 //   snapshot OUT.png
 #include <iwlomap/probability_updater.h>
+#include <iwlomap/sensor_preset.h>
 #include <iwlomap/synthetic_scan.h>
 #include <iwlomap/viewer/snapshot_renderer.h>
 
@@ -15,9 +16,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   iwlomap::ProbabilityUpdater map(0.1);
-  iwlomap::IwloParams params;
-  params.intensity_threshold = 0.0;  // lidar: every return is a hit
-  map.set_params(params);
+  map.set_params(iwlomap::sensor_preset_params(iwlomap::SensorPreset::kLidar));  // every return is a hit
   const iwlomap::SyntheticScan scan = iwlomap::make_synthetic_scan();
   map.insert_scan(scan.origin, scan.points, scan.intensities, 30.0);
 

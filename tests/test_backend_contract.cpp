@@ -256,7 +256,7 @@ TYPED_TEST(BackendContract, MatchesRamWhenScansAndBatchesMixWithChangedParams) {
   std::mt19937 rng(99u);
   IwloParams p;
   p.adaptive_enabled = false;
-  p.intensity_threshold = 0.0;  // the lidar preset: every return is a hit
+  p.intensity_threshold = 0.0;  // every return with a positive intensity is a hit
   p.sharpness = 4.0;
   p.L_min = -5.0;
   p.L_max = 7.0;

@@ -345,7 +345,7 @@ TEST(IwloParams, ValidateAcceptsWhenValuesOnInclusiveBoundaries) {
   EXPECT_NO_THROW(p.validate());
   p.intensity_max = 10.0;
   EXPECT_NO_THROW(p.validate());
-  p.intensity_threshold = 0.0;  // lidar preset
+  p.intensity_threshold = 0.0;  // every positive return a hit
   p.intensity_max = 255.0;
   EXPECT_NO_THROW(p.validate());
 }

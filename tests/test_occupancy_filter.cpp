@@ -585,7 +585,7 @@ TEST(OccupancyFilterData, OusterFramesGiveAGroundPlaneBelowTheSensor) {
   f.setResolution(0.2);
   f.setMaxRange(60.0);
   iwlomap::IwloParams lidar;
-  lidar.intensity_threshold = 0.0;  // the tool's lidar preset
+  lidar.intensity_threshold = 0.0;  // every return with a positive intensity is a hit
   f.setIwloParams(lidar);
   Cloud out;
   Eigen::Vector3f first_origin = Eigen::Vector3f::Zero();

@@ -54,7 +54,7 @@ TEST(Updater, BitIdenticalToStepWhenSweepingInputs) {
   param_sets[6].intensity_threshold = 100.0;  // I_max < I_th: the guard
   param_sets[6].intensity_max = 50.0;
   param_sets[6].sharpness = 2.0;
-  param_sets[7].intensity_threshold = 0.0;  // lidar preset
+  param_sets[7].intensity_threshold = 0.0;  // every positive return a hit
   param_sets[7].min_alpha = 1.0;
   const double counts[] = {1, 2, 3, 24, 25, 100, 4095, 4096, 4097, 5000, 30000, 65535};
   const double intensities[] = {-1.0, 0.0, 1.0, 34.0, 35.0, 35.5, 36.0, 90.5, 100.0, 145.25, 200.0, 254.9999,
