@@ -391,10 +391,16 @@ TEST(ProbabilityUpdaterInsertScan, ThrowsOutOfRangeAndKeepsMapWhenPointBeyondInt
   map.insert_scan(Eigen::Vector3d(0.01, 0.01, 0.01), rows({{1.0, 0.0, 0.0}}), values({200}));
   const Snapshot before = snapshot(map);
   ASSERT_FALSE(before.empty());
-  // The first ray is valid; the second endpoint's key does not fit in int32 (1e9 / 0.05 = 2e10).
-  EXPECT_THROW(map.insert_scan(Eigen::Vector3d(0.01, 0.01, 0.01), rows({{0.0, 1.0, 0.0}, {1e9, 0.0, 0.0}}),
+  // The first ray is valid; the second endpoint's key does not fit in int32 (the origin lies 10
+  // voxels from the end of the key range, the point 20 voxels beyond it).
+  const double edge = 2147483647.0 * 0.05;
+  EXPECT_THROW(map.insert_scan(Eigen::Vector3d(edge - 0.5, 0.01, 0.01), rows({{edge - 1.0, 1.0, 0.0}, {edge + 1.0, 0.0, 0.0}}),
                                values({200, 200})),
                std::out_of_range);
+  // A point far beyond the range (1e9 / 0.05 = 2e10) is past the longest ray: skipped, counted.
+  const std::size_t skipped = map.get_num_skipped_points();
+  EXPECT_NO_THROW(map.insert_scan(Eigen::Vector3d(0.01, 0.01, 0.01), rows({{1e9, 0.0, 0.0}}), values({200})));
+  EXPECT_EQ(map.get_num_skipped_points(), skipped + 1);
   EXPECT_THROW(map.insert_scan(Eigen::Vector3d(-1e9, 0.0, 0.0), rows({{0.0, 1.0, 0.0}}), values({200})),
                std::out_of_range);
   EXPECT_EQ(snapshot(map), before);
@@ -973,13 +979,16 @@ TEST(ProbabilityUpdaterThreads, ZeroMeansAllHardwareThreadsAndNegativeThrows) {
 
 TEST(ProbabilityUpdaterThreads, OutOfRangePointThrowsTheFirstErrorAndKeepsTheMap) {
   const SyntheticScan s = make_synthetic_scan();
-  Eigen::MatrixXd pts = s.points;
-  pts(100, 0) = 1e12;     // in the first thread's range
-  pts(60000, 1) = -1e12;  // in the last thread's range
+  // The scan moved next to the end of the int32 key range (60 m from it at 0.1 m), and two points
+  // moved past it (within the longest ray).
+  const Eigen::RowVector3d shift(2147483647.0 * 0.1 - 60.0, 0.0, 0.0);
+  Eigen::MatrixXd pts = s.points.rowwise() + shift;
+  pts(100, 0) += 100.0;    // in the first thread's range
+  pts(60000, 0) += 100.0;  // in the last thread's range
   ProbabilityUpdater m(0.1);
   m.set_num_threads(4);
   try {
-    m.insert_scan(s.origin, pts, s.intensities);
+    m.insert_scan(s.origin + shift.transpose(), pts, s.intensities);
     FAIL() << "no exception";
   } catch (const std::out_of_range& e) {
     EXPECT_NE(std::string(e.what()).find("point 100 "), std::string::npos) << e.what();

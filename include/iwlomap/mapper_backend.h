@@ -16,6 +16,7 @@
 
 #include "iwlomap/hit_statistics.h"
 #include "iwlomap/iwlo.h"
+#include "iwlomap/ray_caster.h"
 #include "iwlomap/voxel_key.h"
 
 #include <Eigen/Core>
@@ -135,7 +136,10 @@ class IMapperBackend {
   /// threshold is free evidence). One scan updates each voxel at most once: occupied wins over
   /// free, and several hits in one voxel count once with the largest intensity. With
   /// \p max_range > 0, a point farther than max_range gives a free ray clipped at max_range and no
-  /// hit. Non-finite points are skipped and counted; a non-finite origin throws.
+  /// hit. Non-finite points are skipped and counted, and so is a point whose ray (clipped at
+  /// max_range) is longer than kMaxRayVoxels voxel edges: a stray return kilometres away would
+  /// otherwise cross millions of voxels. A non-finite origin throws. With a memory limit
+  /// (set_map_memory_limit()), a scan that would pass it throws MemoryLimitError.
   /// Default: the rays are cast by the library's ray caster and every voxel's one observation goes
   /// to the unweighted batch_update_iwlo() at the voxel centre (free voxels with intensity 0 and no
   /// occupied flag), which gives the same per-voxel result.
@@ -151,7 +155,8 @@ class IMapperBackend {
   /// Default: std::logic_error (BackendFeature::kQuery).
   virtual void for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const;
 
-  /// Points skipped so far because a coordinate or intensity was not finite (reset by clear()).
+  /// Points skipped so far because a coordinate or intensity was not finite, or because their ray
+  /// was longer than kMaxRayVoxels voxel edges (insert_scan()); reset by clear().
   /// Default: the points the default insert_scan() skipped.
   [[nodiscard]] virtual size_t get_num_skipped_points() const;
 

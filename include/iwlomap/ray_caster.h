@@ -15,6 +15,10 @@
 
 namespace iwlomap {
 
+/// The longest ray insert_scan() casts, in voxel edges: 131,072, i.e. 13.1 km at 0.1 m, 1.3 km
+/// at 1 cm. A point farther from the origin (after max_range clipping) is skipped and counted.
+inline constexpr double kMaxRayVoxels = 131072.0;
+
 /// Visits, in order from \p origin, the voxels that the segment origin -> end crosses, starting
 /// with the voxel that contains \p origin and stopping before the voxel that contains \p end (the
 /// endpoint voxel is never visited; a segment inside one voxel visits nothing).

@@ -93,6 +93,8 @@ int run_map(const std::vector<std::string>& argv) {
     }
     if (background) background->sync();
   }
+  if (const std::size_t skipped = setup.map->get_num_skipped_points(); skipped > 0)
+    warn_skipped_points("map", skipped, points, setup.map->get_resolution(), setup.ray_casting);
   // A disk map is complete and durable before any output describes it: a failing final flush
   // fails the run before an output is written.
   setup.map->flush();

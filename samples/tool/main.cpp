@@ -7,6 +7,7 @@
 #include "commands.h"
 #include "progress.h"
 
+#include <iwlomap/map_memory.h>
 #include <iwlomap/version.h>
 #include <pcl/console/print.h>
 
@@ -75,6 +76,10 @@ int main(int argc, char** argv) {
     std::cerr << "iwlomap " << (command.rfind('-', 0) == 0 ? std::string() : command + " ") << "usage error: " << e.what()
               << " (see 'iwlomap " << (command.rfind('-', 0) == 0 ? std::string() : command + " ") << "--help')\n";
     return 2;
+  } catch (const iwlomap::MemoryLimitError& e) {
+    show_status(true, "");
+    std::cerr << "iwlomap " << command << ": error: " << e.what() << " (--resolution, --max-range, --max-memory)\n";
+    return 1;
   } catch (const std::exception& e) {
     show_status(true, "");  // a status line in progress gives way to the error
     std::cerr << "iwlomap " << command << ": error: " << e.what() << "\n";

@@ -3,12 +3,19 @@
 
 #include "progress.h"
 
+#include <iwlomap/map_memory.h>
 #include <iwlomap/outofcore_tile_mapper.h>
+
+#include <sys/resource.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <iostream>
 #include <filesystem>
 #include <cctype>
+#include <charconv>
+#include <cstdio>
+#include <limits>
 
 namespace iwlomap::tool {
 
@@ -16,7 +23,7 @@ std::set<std::string> map_value_options() {
   return {"--resolution", "--backend", "--tiles", "--max-range", "--sensor", "--threshold",
           "--sharpness", "--decay-rate", "--min-alpha", "--l-min", "--l-max", "--l-occ", "--l-free",
           "--intensity-threshold", "--intensity-max", "--adaptive-threshold", "--adaptive-max-ratio",
-          "--threads", "--tile-size", "--cache-tiles"};
+          "--threads", "--tile-size", "--cache-tiles", "--max-memory"};
 }
 
 std::set<std::string> map_flag_options() { return {"--no-rays", "--no-adaptive"}; }
@@ -45,6 +52,10 @@ map:
                             defaults in brackets are the sonar preset's.
   --threshold P             output voxels with occupancy probability > P (default )" + num(d.occupied_threshold) + R"()
   --threads N               threads for ray casting (default 1; 0 = all cores); same map for any N
+  --max-memory SIZE         memory the map may hold, in bytes or with a suffix K, M, G, T (powers
+                            of 1024), or 'none'; past it the run stops with an error before the
+                            scan that would pass it changes the map (default: 3/4 of the physical
+                            memory, or half of the address space left under 'ulimit -v' if less)
 
 IWLO parameters (defaults in brackets):
   --sharpness S [)" + num(d.sharpness) + R"(]   --decay-rate D [)" + num(d.decay_rate) + R"(]   --min-alpha A [)" + num(d.min_alpha) + R"(]
@@ -52,6 +63,54 @@ IWLO parameters (defaults in brackets):
   --intensity-threshold I [)" + num(d.intensity_threshold) + R"(]   --intensity-max I [)" + num(d.intensity_max) + R"(]
   --no-adaptive   --adaptive-threshold P [)" + num(d.adaptive_threshold) + R"(]   --adaptive-max-ratio R [)" + num(d.adaptive_max_ratio) + R"(]
 )";
+}
+
+std::size_t default_memory_limit() {
+  const long pages = sysconf(_SC_PHYS_PAGES);
+  const long page = sysconf(_SC_PAGESIZE);
+  std::size_t limit = pages > 0 && page > 0 ? static_cast<std::size_t>(pages) / 4 * 3 * static_cast<std::size_t>(page)
+                                            : std::size_t{0};
+  rlimit as{};
+  if (getrlimit(RLIMIT_AS, &as) == 0 && as.rlim_cur != RLIM_INFINITY) {
+    // The address space already taken (libraries, the input reader) is not available to the map;
+    // half of what is left leaves room for the scan's input and the outputs.
+    std::size_t used = 0;
+    if (std::FILE* f = std::fopen("/proc/self/statm", "r")) {
+      unsigned long size_pages = 0;
+      if (std::fscanf(f, "%lu", &size_pages) == 1 && page > 0) used = size_pages * static_cast<std::size_t>(page);
+      std::fclose(f);
+    }
+    const auto cap = static_cast<std::size_t>(as.rlim_cur);
+    const std::size_t left = cap > used ? (cap - used) / 2 : std::size_t{1};
+    limit = limit == 0 ? left : std::min(limit, left);
+  }
+  return limit;
+}
+
+std::size_t parse_memory_size(const std::string& text) {
+  if (text == "none") return 0;
+  unsigned long long value = 0;
+  const char* const end = text.data() + text.size();
+  const auto [at, ec] = std::from_chars(text.data(), end, value);
+  const auto bad = [&] {
+    return UsageError("--max-memory must be a byte count with an optional K, M, G or T suffix, or 'none', got '" +
+                      text + "'");
+  };
+  if (ec != std::errc() || at == text.data()) throw bad();
+  int shift = 0;
+  if (at != end) {
+    if (at + 1 != end) throw bad();
+    switch (*at) {
+      case 'K': case 'k': shift = 10; break;
+      case 'M': case 'm': shift = 20; break;
+      case 'G': case 'g': shift = 30; break;
+      case 'T': case 't': shift = 40; break;
+      default: throw bad();
+    }
+  }
+  if (value == 0) throw UsageError("--max-memory must be > 0 (or 'none' for no limit)");
+  if (value > (std::numeric_limits<std::size_t>::max() >> shift)) throw bad();
+  return static_cast<std::size_t>(value) << shift;
 }
 
 MapSetup map_setup_from(const Args& args) {
@@ -113,10 +172,24 @@ MapSetup map_setup_from(const Args& args) {
   }
   const long threads = args.integer("--threads", 1);
   if (threads < 0) throw UsageError("--threads must be >= 0 (0 = all cores)");
+  const auto max_memory = args.value("--max-memory");
+  s.memory_limit = max_memory ? parse_memory_size(*max_memory) : default_memory_limit();
+  set_map_memory_limit(s.memory_limit);
   s.map = make_backend(backend, resolution, options);
   s.map->set_params(p);
   s.map->set_num_threads(static_cast<int>(threads));
   return s;
+}
+
+void warn_skipped_points(const char* command, std::size_t skipped, std::size_t points, double resolution,
+                         bool ray_casting) {
+  show_status(true, "");
+  std::cerr << "iwlomap " << command << ": warning: " << skipped << " of " << points
+            << " points skipped: a coordinate or intensity not finite";
+  if (ray_casting)
+    std::cerr << ", or farther than " << shortest(kMaxRayVoxels * resolution) << " m (" << shortest(kMaxRayVoxels)
+              << " voxels) from the sensor origin (a stray return; --max-range clips such rays instead)";
+  std::cerr << "\n";
 }
 
 void IntensityWarning::check(const std::string& file, const Eigen::VectorXd& intensities, const IwloParams& params) {

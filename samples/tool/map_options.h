@@ -10,6 +10,7 @@
 #include <iwlomap/mapper_backend.h>
 #include <iwlomap/sensor_preset.h>
 
+#include <cstddef>
 #include <memory>
 #include <set>
 #include <string>
@@ -22,6 +23,7 @@ struct MapSetup {
   SensorPreset sensor = SensorPreset::kSonar;
   bool ray_casting = true;
   double max_range = -1.0;
+  std::size_t memory_limit = 0;  // bytes (set_map_memory_limit()); 0: none
 };
 
 [[nodiscard]] std::set<std::string> map_value_options();
@@ -30,8 +32,20 @@ struct MapSetup {
 /// commands that cast no rays from points, as `sonar`, which gives --max-range its own meaning).
 [[nodiscard]] std::string map_options_help(bool rays = true);
 
-/// Builds the backend and parameters the options ask for (preset first, explicit options over it).
+/// The --max-memory default: 3/4 of the physical memory, or half of the address space left under
+/// RLIMIT_AS when that is less.
+[[nodiscard]] std::size_t default_memory_limit();
+/// A --max-memory value: bytes, with an optional K, M, G or T suffix (powers of 1024); 'none' is 0.
+[[nodiscard]] std::size_t parse_memory_size(const std::string& text);
+
+/// Builds the backend and parameters the options ask for (preset first, explicit options over it),
+/// and sets the process's map memory limit (--max-memory).
 [[nodiscard]] MapSetup map_setup_from(const Args& args);
+
+/// Warns on stderr that \p skipped of \p points points were left out of the map, and why: not
+/// finite, or (with ray casting) farther from the sensor origin than the longest ray.
+void warn_skipped_points(const char* command, std::size_t skipped, std::size_t points, double resolution,
+                         bool ray_casting);
 
 /// Warns once per run, on stderr, when a cloud's intensities do not suit the parameters (most of
 /// its points would be free space: check_intensities()), naming the file and the preset to use.

@@ -97,6 +97,7 @@ class HitAccumulator {
   void add_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                 double max_range, double intensity_threshold) {
     const bool clip = max_range > 0.0;
+    const double longest = kMaxRayVoxels * resolution_;
     const auto visit = [this](const VoxelKey& k) { add_visit(k); };
     for (Eigen::Index i = 0; i < points.rows(); ++i) {
       const Eigen::Vector3d p = points.row(i).transpose();
@@ -105,6 +106,7 @@ class HitAccumulator {
       const Eigen::Vector3d d = p - origin;
       const double range = d.norm();
       const bool beyond = clip && range > max_range;
+      if ((beyond ? max_range : range) > longest) continue;
       const Eigen::Vector3d end_point = beyond ? Eigen::Vector3d(origin + d * (max_range / range)) : p;
       cast_ray(origin, end_point, resolution_, visit);
       if (beyond) continue;

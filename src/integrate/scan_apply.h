@@ -9,13 +9,36 @@
 
 #include "integrate/scan_scratch.h"
 #include "storage/block_grid.h"
+#include "storage/memory_limit.h"
 
 #include <cstddef>
 
 namespace iwlomap::detail {
 
-/// Allocates every block and cell the scan will update.
+/// An upper bound on the slab bytes allocate_scan() can add to \p grid: a header for each new
+/// block, and for each block whose cell array must grow the array of the new size class (the old
+/// one goes to a free list, so it is not counted as freed), plus a fresh slab for the headers and
+/// one for the cells when any are needed, since arenas map whole slabs. A scan over known space
+/// needs nothing, and is never refused.
+inline std::size_t scan_growth_bound(const ScanScratch& s, const BlockGrid& grid) {
+  std::size_t headers = 0;
+  std::size_t cell_arrays = 0;
+  s.for_each_block([&](const VoxelKey& block_key, const CellMask& cells) {
+    const VoxelBlock* b = grid.find(block_key);
+    const int old_count = b == nullptr ? 0 : b->num_cells();
+    const int count = b == nullptr ? cells.count() : old_count + cells.without(b->cell_mask).count();
+    if (b == nullptr) headers += sizeof(VoxelBlock);
+    if (count > old_count && (old_count == 0 || CellPool::class_of(count) != CellPool::class_of(old_count)))
+      cell_arrays += sizeof(Cell) << CellPool::class_of(count);
+  });
+  return headers + cell_arrays + (headers > 0 ? kLargestSlabBytes : 0) + (cell_arrays > 0 ? kLargestSlabBytes : 0);
+}
+
+/// Allocates every block and cell the scan will update. With a map memory limit, first works out
+/// the most the allocation can take and throws MemoryLimitError before changing the grid when
+/// that would pass the limit (see scan_growth_bound()).
 inline void allocate_scan(const ScanScratch& s, BlockGrid& grid) {
+  if (map_memory_limit() != 0) check_map_memory(scan_growth_bound(s, grid), "the scan's voxels");
   BlockAccessor acc(grid);
   s.for_each_block([&](const VoxelKey& block_key, const CellMask& cells) { grid.ensure_cells(acc.block(block_key), cells); });
 }

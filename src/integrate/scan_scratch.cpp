@@ -3,6 +3,7 @@
 
 #include "integrate/batch_input.h"
 #include "storage/free_memory.h"
+#include "storage/memory_limit.h"
 #include "iwlomap/ray_caster.h"
 
 #include <algorithm>
@@ -15,6 +16,10 @@ namespace iwlomap::detail {
 
 std::size_t ScanScratch::chunk(const VoxelKey& chunk_key) {
   const auto next = static_cast<std::uint32_t>(chunks_.size());
+  // Growing the chunk array is where a scan's scratch takes memory (8 KiB per chunk): checked
+  // against the map memory limit before the index or the array changes.
+  if (chunks_.size() == chunks_.capacity() && chunk_index_.find(chunk_key) == FlatKeyMap::kEmpty)
+    check_map_memory(2 * chunks_.size() * sizeof(Chunk), "the scan's ray scratch");
   const std::uint32_t i = chunk_index_.insert(chunk_key, next);
   if (i == next) {
     chunks_.emplace_back();
@@ -48,6 +53,7 @@ std::size_t ScanScratch::collect_range(const Eigen::Vector3d& origin, const Eige
                                        const Eigen::VectorXd& intensities, double max_range, double resolution,
                                        Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad) {
   const bool clip = max_range > 0.0;
+  const double longest = kMaxRayVoxels * resolution;
   std::size_t skipped = 0;
   const auto mark = [this](const VoxelKey& k) { mark_free(k); };
   for (Eigen::Index i = begin; i < end; ++i) {
@@ -60,6 +66,10 @@ std::size_t ScanScratch::collect_range(const Eigen::Vector3d& origin, const Eige
     const Eigen::Vector3d d = p - origin;
     const double range = d.norm();
     const bool beyond = clip && range > max_range;
+    if ((beyond ? max_range : range) > longest) {
+      ++skipped;
+      continue;
+    }
     const Eigen::Vector3d end_point = beyond ? Eigen::Vector3d(origin + d * (max_range / range)) : p;
     if (!is_representable(end_point, resolution)) {
       if (first_bad == nullptr) throw_out_of_range(i, p, resolution);
@@ -103,10 +113,18 @@ std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::Mat
   helpers_.resize(static_cast<std::size_t>(t - 1));
   std::vector<std::size_t> skipped(static_cast<std::size_t>(t), 0);
   std::vector<Eigen::Index> first_bad(static_cast<std::size_t>(t), n);
+  // A thread that cannot get memory (the map memory limit, std::bad_alloc) stops the others and
+  // its exception is rethrown on the calling thread once all have joined.
+  std::vector<std::exception_ptr> failed(static_cast<std::size_t>(t));
   const auto work = [&](ScanScratch& into, std::size_t k) {
-    for (Eigen::Index b = next.fetch_add(kGrain); b < n; b = next.fetch_add(kGrain))
-      skipped[k] += into.collect_range(origin, points, intensities, max_range, resolution, b, std::min(b + kGrain, n),
-                                       &first_bad[k]);
+    try {
+      for (Eigen::Index b = next.fetch_add(kGrain); b < n; b = next.fetch_add(kGrain))
+        skipped[k] += into.collect_range(origin, points, intensities, max_range, resolution, b,
+                                         std::min(b + kGrain, n), &first_bad[k]);
+    } catch (...) {
+      failed[k] = std::current_exception();
+      next.store(n);
+    }
   };
   std::vector<std::thread> workers;
   workers.reserve(static_cast<std::size_t>(t - 1));
@@ -119,6 +137,8 @@ std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::Mat
   }
   work(*this, 0);  // the calling thread casts into this scratch directly
   for (auto& w : workers) w.join();
+  for (const std::exception_ptr& e : failed)
+    if (e) std::rethrow_exception(e);
   const Eigen::Index bad = *std::min_element(first_bad.begin(), first_bad.end());
   if (bad < n) throw_out_of_range(bad, points.row(bad).transpose(), resolution);
   std::size_t total = skipped[0];

@@ -2,6 +2,7 @@
 #include "storage/block_grid.h"
 
 #include "iwlomap/map_memory.h"
+#include "storage/memory_limit.h"
 
 #include <sys/mman.h>
 
@@ -17,7 +18,7 @@ namespace iwlomap::detail {
 namespace {
 
 constexpr std::size_t kFirstSlab = 64 * 1024;
-constexpr std::size_t kLargestSlab = 2 * 1024 * 1024;
+constexpr std::size_t kLargestSlab = kLargestSlabBytes;
 
 // Slabs come from mmap, not malloc: glibc raises its mmap threshold after large frees and then
 // serves big blocks from a reused heap, which made every map after the first one in a process
@@ -122,7 +123,15 @@ SlabArena::~SlabArena() {
 void* SlabArena::allocate_in_new_slab(std::size_t size) {
   const std::size_t slab = slabs_.empty() ? kFirstSlab : std::min(kLargestSlab, slabs_.back().size * 2);
   if (slabs_.size() == slabs_.capacity()) slabs_.reserve(2 * slabs_.size() + 8);  // a failing push_back would lose the slab
-  slabs_.push_back({map_slab(slab), slab});
+  charge_map_memory(slab);
+  void* memory = nullptr;
+  try {
+    memory = map_slab(slab);
+  } catch (...) {
+    uncharge_map_memory(slab);
+    throw;
+  }
+  slabs_.push_back({memory, slab});
   bytes_ += slab;
   capacity_ = slab;
   used_ = size;
@@ -131,6 +140,7 @@ void* SlabArena::allocate_in_new_slab(std::size_t size) {
 
 void SlabArena::release() noexcept {
   for (const Slab& s : slabs_) unmap_slab(s.memory, s.size);
+  uncharge_map_memory(bytes_);
   slabs_.clear();
   used_ = capacity_ = bytes_ = 0;
 }

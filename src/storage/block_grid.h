@@ -197,6 +197,9 @@ static_assert(std::is_trivially_destructible_v<VoxelBlock> && std::is_trivially_
 // millions of voxels allocates thousands of blocks per scan, and one heap allocation each cost
 // more than updating them. Slabs grow from 64 KiB to 2 MiB, come from mmap and go back to a
 // process-wide cache for reuse (see block_grid.cpp and iwlomap/map_memory.h).
+/// The largest slab an arena maps at once (they grow from 64 KiB).
+inline constexpr std::size_t kLargestSlabBytes = 2 * 1024 * 1024;
+
 class SlabArena {
  public:
   SlabArena();

@@ -43,7 +43,7 @@ for cmd in map info generate export; do
   check "help_$cmd" 0 "$TOOL" "$cmd" --help
   expect "help_${cmd}_usage" grep -q "usage: iwlomap $cmd" "$WORK/help_$cmd.out"
 done
-expect map_help_lists_every_option bash -c "for o in --tile-size --cache-tiles --octomap --snapshot --threads --async --resolution --backend --tiles --max-range --no-rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
+expect map_help_lists_every_option bash -c "for o in --tile-size --cache-tiles --octomap --snapshot --threads --async --resolution --backend --tiles --max-range --no-rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio --max-memory; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
 
 check help_sonar 0 "$TOOL" sonar --help
 expect sonar_help_max_range_once test "$(grep -c -- '--max-range' "$WORK/help_sonar.out")" = 1
@@ -297,6 +297,30 @@ expect zeros_lidar_no_warning test ! -s "$WORK/zeros_lidar.err"
 expect zeros_lidar_maps bash -c "grep -q 'lidar preset: .* [1-9][0-9]* occupied' '$WORK/zeros_lidar.out'"
 check zeros_depth 0 "$TOOL" map "$WORK/zeros.pcd" --resolution 0.2 --sensor depth
 expect zeros_depth_maps bash -c "grep -q 'depth preset: .* [1-9][0-9]* occupied' '$WORK/zeros_depth.out'"
+
+# Memory: a stray return 1,000 km out is skipped with one warning, not cast across millions of
+# voxels; a resolution far too fine for the cloud stops with the memory error naming what to
+# change, before the map takes the machine; --max-memory is parsed strictly.
+pcd outlier.pcd "4 4 4 4" "$F4" "1 1 1 1" 401 "0.05 0.05 0.05 1 0 0 0" ascii
+awk 'BEGIN { for (i = 0; i < 400; i++) printf "3.0 %.3f %.3f 200\n", (i % 20) * 0.1 - 1.0, int(i / 20) * 0.1 - 1.0; print "1000000 3 1 200" }' >>"$WORK/outlier.pcd"
+check outlier_skipped 0 timeout 60 "$TOOL" map "$WORK/outlier.pcd" --resolution 0.05 -o "$WORK/outlier_out.pcd"
+expect outlier_warns_once bash -c "test \$(grep -c 'warning: 1 of 401 points skipped.*from the sensor origin' '$WORK/outlier_skipped.err') = 1"
+expect outlier_counted grep -q "401 points (1 skipped)" "$WORK/outlier_skipped.out"
+check too_fine_limited 1 timeout 120 "$TOOL" map "$WORK/outlier.pcd" --resolution 0.0002 --max-memory 256M
+expect too_fine_one_line one_line too_fine_limited
+expect too_fine_says_what_to_change grep -q "memory limit of 256.0 MiB.*--resolution, --max-range, --max-memory" "$WORK/too_fine_limited.err"
+if [ -z "${IWLOMAP_TOOL_SANITIZED:-}" ]; then
+  # Under a cap on the address space, the default limit stays below it: the same error, not
+  # std::bad_alloc. (Sanitizers reserve more address space than any cap leaves.)
+  check too_fine_ulimit 1 bash -c "ulimit -v 2000000 && exec timeout 120 '$TOOL' map '$WORK/outlier.pcd' --resolution 0.0002"
+  expect too_fine_ulimit_one_line one_line too_fine_ulimit
+  expect too_fine_ulimit_memory_error bash -c "grep -q 'past the map memory limit' '$WORK/too_fine_ulimit.err' && ! grep -q bad_alloc '$WORK/too_fine_ulimit.err'"
+fi
+for bad in 12Q 0 -5 1.5G 99999999999999999999 16E; do
+  check "max_memory_bad_$bad" 2 "$TOOL" map "$WORK/outlier.pcd" --max-memory "$bad"
+done
+check max_memory_none 0 "$TOOL" map "$WORK/outlier.pcd" --resolution 0.1 --max-memory none -q
+check max_memory_suffix 0 "$TOOL" map "$WORK/outlier.pcd" --resolution 0.1 --max-memory 64m -q
 
 check version 0 "$TOOL" --version
 expect version_line grep -Eq '^iwlomap [0-9]+[.][0-9]+[.][0-9]+ [(]layers: core' "$WORK/version.out"
