@@ -7,7 +7,8 @@ set -euo pipefail
 PACKAGES=(build-essential cmake git pkg-config
   libeigen3-dev libpcl-dev liboctomap-dev libvtk9-dev libflann-dev
   libgtest-dev libgmock-dev libbenchmark-dev
-  octomap-tools pcl-tools xvfb xauth doxygen)
+  octomap-tools pcl-tools xvfb xauth doxygen
+  clang libclang-rt-14-dev)
 
 missing=()
 for p in "${PACKAGES[@]}"; do

@@ -152,6 +152,8 @@ CloudHeader check_pcd(const std::string& path, std::uint64_t file_size) {
   if (*width > std::numeric_limits<std::uint32_t>::max() || *height > std::numeric_limits<std::uint32_t>::max())
     fail(path, "WIDTH or HEIGHT beyond 2^32 - 1");
   out.points = *width * *height;  // both < 2^32: no overflow
+  out.fields = fields.size();
+  out.point_size = point_size;
   if (points && *points != out.points)
     fail(path, "POINTS is " + std::to_string(*points) + " but WIDTH x HEIGHT is " + std::to_string(out.points));
   const std::uint64_t body = file_size - std::min(file_size, h.data_offset);

@@ -19,6 +19,8 @@ namespace iwlomap::tool {
 /// What a checked header promises (PCD; PLY fills `points` only).
 struct CloudHeader {
   std::uint64_t points = 0;  ///< WIDTH * HEIGHT (PCD) or the vertex count (PLY)
+  std::uint64_t fields = 0;      ///< entries of FIELDS (PCD)
+  std::uint64_t point_size = 0;  ///< bytes per point (PCD)
   bool has_viewpoint = false;
 };
 

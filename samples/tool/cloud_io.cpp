@@ -10,6 +10,7 @@
 #include <pcl/io/ply_io.h>
 
 #include <algorithm>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <stdexcept>
@@ -45,12 +46,22 @@ LoadedCloud load_cloud(const std::string& path, float missing_intensity) {
   Eigen::Quaternionf orientation = Eigen::Quaternionf::Identity();
   int version = 0;
   int rc = 0;
-  if (ext == ".pcd" && header.points == 0) {  // PCL 1.13's PCDReader::read fails on an empty cloud
+  if (ext == ".pcd") {
+    // PCL's header parser does not stop at DATA in every case (a FIELDS or COLUMNS line inside a
+    // binary body replaces the header's fields), and its reader then works on a cloud without
+    // fields (a string of terabytes built from garbage, found by fuzzing): the cloud PCL's parser
+    // sees must be the one checked above.
     int data_type = 0;
     unsigned int data_idx = 0;
     rc = pcl::PCDReader().readHeader(path, blob, origin, orientation, version, data_type, data_idx);
-  } else if (ext == ".pcd") {
-    rc = pcl::PCDReader().read(path, blob, origin, orientation, version);
+    if (rc >= 0 && (blob.fields.size() != header.fields || blob.point_step != header.point_size ||
+                    static_cast<std::uint64_t>(blob.width) * blob.height != header.points))
+      throw std::runtime_error("'" + path + "': the header reads differently in PCL's parser (" +
+                               std::to_string(blob.fields.size()) + " fields of " + std::to_string(blob.point_step) +
+                               " bytes, expected " + std::to_string(header.fields) + " of " +
+                               std::to_string(header.point_size) + "): a header line inside the data?");
+    // PCL 1.13's PCDReader::read fails on an empty cloud: its header is all there is.
+    if (rc >= 0 && header.points > 0) rc = pcl::PCDReader().read(path, blob, origin, orientation, version);
   } else {
     rc = pcl::PLYReader().read(path, blob, origin, orientation, version);
   }

@@ -246,7 +246,7 @@ void BlockGrid::clear() {
   cells_pool_ = std::make_unique<CellPool>();
   index_.reset();
   cells_ = 0;
-  recent_ = std::make_unique<std::array<VoxelBlock*, std::size_t{1} << kRecentBits>>();  // also after a move
+  recent_ = std::make_unique<std::array<VoxelBlock*, kRecentSlots>>();  // also after a move
 }
 
 }  // namespace iwlomap::detail

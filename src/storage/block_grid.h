@@ -355,8 +355,9 @@ class BlockGrid {
   // coordinate, not from its low bits, which made blocks 16 apart on the ground collide. Only the
   // writing path uses it; find() stays free of side effects for concurrent readers.
   static constexpr int kRecentBits = 11;
-  std::unique_ptr<std::array<VoxelBlock*, std::size_t{1} << kRecentBits>> recent_ =
-      std::make_unique<std::array<VoxelBlock*, std::size_t{1} << kRecentBits>>();
+  static constexpr std::size_t kRecentSlots = std::size_t{1} << kRecentBits;
+  std::unique_ptr<std::array<VoxelBlock*, kRecentSlots>> recent_ =
+      std::make_unique<std::array<VoxelBlock*, kRecentSlots>>();
 
   std::unique_ptr<SlabArena> headers_ = std::make_unique<SlabArena>();
   std::unique_ptr<CellPool> cells_pool_ = std::make_unique<CellPool>();

@@ -272,6 +272,9 @@ pcd compressed_lies.pcd "4 4 4 4" "$F4" "1 1 1 1" 1000 "$V" binary_compressed '\
 hostile compressed_lies.pcd compressed
 pcd viewpoint_nan.pcd "4 4 4 4" "$F4" "1 1 1 1" 1 "nan 0 0 1 0 0 0" ascii '1 2 3 4\n'
 hostile viewpoint_nan.pcd VIEWPOINT
+# A header line inside the binary body, which PCL's parser reads as the header's (found by fuzzing).
+pcd header_in_body.pcd "4 4 4 4" "$F4" "1 1 1 1" 3 "$V" binary 'COLUMNS@\x00\x00@@\x00!.P\x01ply\nformat ascii 0.4\nelem\x00\x00\x00\x00\x00\x00ent vertex'
+hostile header_in_body.pcd "header line inside the data"
 printf '# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 5\n' >"$WORK/header_truncated.pcd"
 hostile header_truncated.pcd DATA
 printf 'ply\nformat binary_little_endian 1.0\nelement vertex 4294967296\nproperty float x\nproperty float y\nproperty float z\nend_header\n0123456789ab' >"$WORK/vertex_huge.ply"

@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# SPDX-License-Identifier: BSD-3-Clause
+# Builds the libFuzzer targets of tests/fuzz with Clang (ASan + UBSan) into build-fuzz and runs
+# each for SECONDS (default 20, the test command's short run). The corpus of each target grows in
+# build-fuzz/corpus/TARGET between runs (seeded by fuzz_make_seeds); a crash, a hang (10 s per
+# input) or an allocation over 1 GiB stops the run, leaves the input in build-fuzz/findings/ and
+# fails the script. Long runs: scripts/fuzz.sh 3600 (see docs/reliability.md).
+# usage: scripts/fuzz.sh [SECONDS] [TARGET...]   (targets: fuzz_cloud fuzz_tile fuzz_oculus)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+case "${1:-}" in
+  -h|--help) sed -n '3,9p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+esac
+SECONDS_EACH=${1:-20}
+[[ "$SECONDS_EACH" =~ ^[1-9][0-9]*$ ]] || { echo "fuzz.sh: SECONDS must be a positive integer, got '$SECONDS_EACH'" >&2; exit 2; }
+shift || true
+TARGETS=("$@")
+[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(fuzz_cloud fuzz_tile fuzz_oculus)
+BUILD=build-fuzz
+
+bash scripts/setup.sh
+CC=clang CXX=clang++ cmake -S . -B "$BUILD" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DIWLOMAP_BUILD_FUZZERS=ON \
+  -DIWLOMAP_BUILD_TESTS=OFF -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_BUILD_EXAMPLES=OFF \
+  -DIWLOMAP_WITH_VIEWER=OFF -DIWLOMAP_WITH_OCTOMAP=OFF -DIWLOMAP_WITH_FILTERS=OFF >/dev/null
+cmake --build "$BUILD" -j "${JOBS:-$(nproc)}" --target fuzz_make_seeds "${TARGETS[@]}"
+"$BUILD/tests/fuzz/fuzz_make_seeds" "$BUILD/corpus"
+
+status=0
+for t in "${TARGETS[@]}"; do
+  mkdir -p "$BUILD/findings/$t"
+  log="$BUILD/findings/$t.log"
+  if "$BUILD/tests/fuzz/$t" "$BUILD/corpus/$t" -max_total_time="$SECONDS_EACH" -timeout=10 \
+      -rss_limit_mb=2560 -malloc_limit_mb=1024 -print_final_stats=1 \
+      -artifact_prefix="$BUILD/findings/$t/" >"$log" 2>&1; then
+    result="no crash"
+  else
+    result="FAILED (input in $BUILD/findings/$t/, log $log)"
+    status=1
+    tail -40 "$log" >&2
+  fi
+  runs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log" | tail -1)
+  files=$(find "$BUILD/corpus/$t" -type f | wc -l)
+  bytes=$(du -sb "$BUILD/corpus/$t" | cut -f1)
+  echo "$t: ${runs:-?} executions in ${SECONDS_EACH} s, corpus $files files ($bytes bytes): $result"
+done
+exit $status
