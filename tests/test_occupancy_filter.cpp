@@ -4,18 +4,21 @@
 
 #include <Eigen/Geometry>
 #include <iwlomap/filters/occupancy_filter.h>
+#include <iwlomap/filters/pointcloud2.h>
 #include <iwlomap/probability_updater.h>
 
 #include "reference_api_double.h"
 
 #include <gtest/gtest.h>
 #include <pcl/console/print.h>
+#include <pcl/conversions.h>
 #include <pcl/filters/passthrough.h>
 #include <pcl/filters/voxel_grid.h>
 #include <pcl/io/pcd_io.h>
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <functional>
 #include <limits>
@@ -429,7 +432,7 @@ TEST(OccupancyFilter, AllZeroIntensitiesWarnOnceAndMapWithTheLidarPreset) {
 // An organised frame seen from the origin: a wall at x = 4 m (20 x 10 points), and, when
 // \p with_box, a box face at x = 2 m in front of its middle (the wall points behind it hidden).
 // Returns the frame and the indices of the box's points.
-std::pair<Cloud::Ptr, std::vector<int>> wall_frame(bool with_box) {
+std::pair<Cloud::Ptr, std::vector<int>> wall_frame(bool with_box, float box_x = 2.0f) {
   Cloud::Ptr c(new Cloud);
   c->width = 20;
   c->height = 10;
@@ -442,9 +445,10 @@ std::pair<Cloud::Ptr, std::vector<int>> wall_frame(bool with_box) {
       const float z = -0.5f + 0.1f * static_cast<float>(row) + 0.05f;
       const bool hidden = with_box && std::abs(y) < 0.35f && std::abs(z) < 0.25f;
       pcl::PointXYZI& p = (*c)[static_cast<std::size_t>(row * 20 + col)];
-      p.x = hidden ? 2.0f : 4.0f;
-      p.y = hidden ? y / 2.0f : y;  // on the ray towards the hidden wall point
-      p.z = hidden ? z / 2.0f : z;
+      const float along = box_x / 4.0f;  // on the ray towards the hidden wall point
+      p.x = hidden ? box_x : 4.0f;
+      p.y = hidden ? y * along : y;
+      p.z = hidden ? z * along : z;
       p.intensity = 100.0f;
       if (hidden) box.push_back(row * 20 + col);
     }
@@ -502,6 +506,52 @@ TEST(OccupancyFilter, InputPointsModeRemovesAnObjectInSpaceSeenFree) {
       EXPECT_EQ(out[static_cast<std::size_t>(i)].x, (*frame)[static_cast<std::size_t>(i)].x);
     }
   }
+}
+
+// A box that appears, then moves, in space the map saw free: at each place its points are removed
+// on first sight and for the next frames, and kept once its voxels are occupied; its old place
+// clears. The numbers of frames are the lidar preset's (README, "The PCL filter").
+TEST(OccupancyFilter, InputPointsModeFollowsABoxMovedBetweenFrames) {
+  Filter f(/*extract_removed_indices=*/true);
+  f.setResolution(0.1);
+  f.setSensorPreset(iwlomap::SensorPreset::kLidar);
+  f.setOutputMode(iwlomap::OutputMode::kInputPoints);
+  Cloud out;
+  const auto removed_of = [&](float box_x) {
+    const auto [frame, box] = wall_frame(true, box_x);
+    f.setInputCloud(frame);
+    f.filter(out);
+    std::size_t removed_box = 0;
+    for (const int i : *f.getRemovedIndices())
+      removed_box += std::find(box.begin(), box.end(), i) != box.end() ? 1 : 0;
+    EXPECT_EQ(f.getRemovedIndices()->size(), removed_box) << "only box points are ever removed";
+    return removed_box;
+  };
+  // Ten frames of the wall alone: the space in front of it is seen free.
+  for (int k = 0; k < 10; ++k) {
+    f.setInputCloud(wall_frame(false).first);
+    f.filter(out);
+  }
+  // A box 2 m out, staying 10 frames.
+  std::vector<std::size_t> at_first;
+  for (int k = 0; k < 10; ++k) at_first.push_back(removed_of(2.0f));
+  // Moved 1 m back, into space the first ten frames saw free (and the box then hid).
+  std::vector<std::size_t> removed;
+  for (int k = 0; k < 12; ++k) removed.push_back(removed_of(3.0f));
+  // Both places: removed whole for the first 3 frames; from the 4th most points are kept (the
+  // box's edge voxels, which rays to the wall also cross, take 2 frames more); whole from the 6th.
+  for (const std::vector<std::size_t>* run : {&at_first, &removed}) {
+    const std::vector<std::size_t>& r = *run;
+    for (std::size_t k = 0; k < 3; ++k) EXPECT_EQ(r[k], 35u) << "frame " << k + 1;
+    for (std::size_t k = 3; k < 5; ++k) EXPECT_LE(r[k], 7u) << "frame " << k + 1;
+    for (std::size_t k = 5; k < r.size(); ++k) EXPECT_EQ(r[k], 0u) << "frame " << k + 1;
+  }
+  // Its old place: in the map (map mode), no occupied voxel at x = 2 m once the rays to the box's
+  // new place have crossed it 7 times.
+  f.setOutputMode(iwlomap::OutputMode::kMap);
+  f.setInputCloud(wall_frame(true, 3.0f).first);
+  f.filter(out);
+  for (const auto& p : out) EXPECT_GT(p.x, 2.5f) << "the box's old place is clear";
 }
 
 // Every precompiled point type maps, and input-points mode keeps each type's own fields.
@@ -693,6 +743,125 @@ TEST(OccupancyFilterData, OculusPingsWithoutRaysOccupyStrongEchoes) {
             << strong_voxels << " voxels with an echo >= 150 are occupied\n";
   ASSERT_GT(strong_voxels, 100u);
   EXPECT_GT(static_cast<double>(strong_occupied), 0.95 * static_cast<double>(strong_voxels));
+}
+
+}  // namespace
+
+// ---- pcl::PCLPointCloud2 input ----
+
+namespace {
+
+// A 2 x 2 organised blob with double x, y, z, a 16-bit intensity and 3 bytes of padding between.
+pcl::PCLPointCloud2 double_blob() {
+  pcl::PCLPointCloud2 blob;
+  const auto field = [](const char* name, std::uint32_t offset, std::uint8_t type) {
+    pcl::PCLPointField f;
+    f.name = name;
+    f.offset = offset;
+    f.datatype = type;
+    f.count = 1;
+    return f;
+  };
+  blob.fields = {field("x", 0, pcl::PCLPointField::FLOAT64), field("y", 8, pcl::PCLPointField::FLOAT64),
+                 field("z", 16, pcl::PCLPointField::FLOAT64), field("intensity", 27, pcl::PCLPointField::UINT16)};
+  blob.point_step = 29;
+  blob.width = 2;
+  blob.height = 2;
+  blob.row_step = blob.point_step * blob.width;
+  blob.data.assign(static_cast<std::size_t>(blob.point_step) * 4, 0);
+  for (std::size_t i = 0; i < 4; ++i) {
+    const double xyz[3] = {1.25 + static_cast<double>(i), -2.5 * static_cast<double>(i), 0.125};
+    const std::uint16_t intensity = static_cast<std::uint16_t>(300 + 1000 * i);
+    std::memcpy(&blob.data[i * blob.point_step], xyz, sizeof xyz);
+    std::memcpy(&blob.data[i * blob.point_step + 27], &intensity, sizeof intensity);
+  }
+  return blob;
+}
+
+TEST(PointCloud2, ConvertsEveryNumericTypeAndKeepsTheOrganisation) {
+  Cloud out;
+  iwlomap::pointcloud2_to_xyzi(double_blob(), out);
+  ASSERT_EQ(out.size(), 4u);
+  EXPECT_EQ(out.width, 2u);
+  EXPECT_EQ(out.height, 2u);
+  for (std::size_t i = 0; i < 4; ++i) {
+    EXPECT_EQ(out[i].x, static_cast<float>(1.25 + static_cast<double>(i)));
+    EXPECT_EQ(out[i].y, static_cast<float>(-2.5 * static_cast<double>(i)));
+    EXPECT_EQ(out[i].z, 0.125f);
+    EXPECT_EQ(out[i].intensity, static_cast<float>(300 + 1000 * i));
+  }
+  // PCL's own conversion leaves fields of another type at zero: the reason for this helper.
+  Cloud pcl_way;
+  pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS);
+  pcl::fromPCLPointCloud2(double_blob(), pcl_way);
+  EXPECT_EQ(pcl_way[1].x, 0.0f);
+  // Without an intensity field, every point gets the given intensity.
+  pcl::PCLPointCloud2 no_intensity = double_blob();
+  no_intensity.fields.pop_back();
+  iwlomap::pointcloud2_to_xyzi(no_intensity, out, 42.0f);
+  EXPECT_EQ(out[3].intensity, 42.0f);
+  EXPECT_TRUE(iwlomap::has_field(double_blob(), "intensity"));
+  EXPECT_FALSE(iwlomap::has_field(no_intensity, "intensity"));
+}
+
+TEST(PointCloud2, ThrowsNamingTheProblemWhenTheBlobIsInconsistent) {
+  const auto message = [](const pcl::PCLPointCloud2& blob) {
+    Cloud out;
+    try {
+      iwlomap::pointcloud2_to_xyzi(blob, out);
+    } catch (const std::invalid_argument& e) {
+      return std::string(e.what());
+    }
+    return std::string("no exception");
+  };
+  pcl::PCLPointCloud2 no_z = double_blob();
+  no_z.fields.erase(no_z.fields.begin() + 2);
+  EXPECT_NE(message(no_z).find("no x, y and z"), std::string::npos);
+  pcl::PCLPointCloud2 outside = double_blob();
+  outside.fields[3].offset = 28;  // 2 bytes from 28 pass the 29-byte point
+  EXPECT_NE(message(outside).find("'intensity'"), std::string::npos) << message(outside);
+  pcl::PCLPointCloud2 unknown = double_blob();
+  unknown.fields[0].datatype = 42;
+  EXPECT_NE(message(unknown).find("unknown datatype 42"), std::string::npos) << message(unknown);
+  pcl::PCLPointCloud2 short_data = double_blob();
+  short_data.data.resize(short_data.data.size() - 1);
+  EXPECT_NE(message(short_data).find("less than 4 points"), std::string::npos) << message(short_data);
+}
+
+// A cloud sent as PCLPointCloud2 (as ROS messages arrive) maps as the typed cloud does.
+TEST(PointCloud2, FiltersAsTheTypedCloudDoes) {
+  Cloud::Ptr typed(new Cloud);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-3.0f, 3.0f);
+  for (int i = 0; i < 500; ++i) {
+    pcl::PointXYZI p;
+    p.x = u(rng);
+    p.y = u(rng);
+    p.z = u(rng) * 0.2f;
+    p.intensity = static_cast<float>(i % 250);
+    typed->push_back(p);
+  }
+  pcl::PCLPointCloud2 blob;
+  pcl::toPCLPointCloud2(*typed, blob);
+  Cloud::Ptr converted(new Cloud);
+  iwlomap::pointcloud2_to_xyzi(blob, *converted);
+  converted->sensor_origin_ = typed->sensor_origin_;
+  Cloud a, b;
+  Filter fa, fb;
+  fa.setResolution(0.1);
+  fb.setResolution(0.1);
+  fa.setSensorPreset(iwlomap::SensorPreset::kLidar);
+  fb.setSensorPreset(iwlomap::SensorPreset::kLidar);
+  fa.setInputCloud(typed);
+  fa.filter(a);
+  fb.setInputCloud(converted);
+  fb.filter(b);
+  ASSERT_GT(a.size(), 100u);
+  ASSERT_EQ(a.size(), b.size());
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    EXPECT_EQ(a[i].x, b[i].x);
+    EXPECT_EQ(a[i].intensity, b[i].intensity);
+  }
 }
 
 }  // namespace

@@ -43,6 +43,35 @@ int free_observations_to_clear(const IwloParams& params, int hits) {
   return n;
 }
 
+// Hits (intensity \p intensity) after \p frees free observations until the voxel is occupied (p > 0.7).
+int hits_to_occupy(const IwloParams& params, int frees, double intensity) {
+  ProbabilityUpdater map(0.1);
+  map.set_params(params);
+  Eigen::MatrixXd point(1, 3);
+  point << 1.05, 1.05, 1.05;
+  const Eigen::VectorXd value = Eigen::VectorXd::Constant(1, intensity);
+  for (int i = 0; i < frees; ++i) map.batch_update_iwlo(point, value, {false});
+  int n = 0;
+  while (probability_of(map, point.row(0).transpose()) <= params.occupied_threshold && n < 1000) {
+    map.batch_update_iwlo(point, value, {true});
+    ++n;
+  }
+  return n;
+}
+
+// OctoMap's count of hits after \p frees misses until p > 0.7 (its defaults, clamping at 0.12).
+int octomap_hits_to_occupy(int frees) {
+  const double hit = std::log(0.7 / 0.3), miss = std::log(0.4 / 0.6), bottom = std::log(0.1192 / 0.8808);
+  double l = 0.0;
+  for (int i = 0; i < frees; ++i) l = std::max(bottom, l + miss);
+  int n = 0;
+  while (1.0 / (1.0 + std::exp(-l)) <= 0.7) {
+    l += hit;
+    ++n;
+  }
+  return n;
+}
+
 // OctoMap's own count with its defaults (hit 0.7, miss 0.4, clamping at 0.97), the same rule.
 int octomap_free_observations_to_clear(int hits) {
   const double hit = std::log(0.7 / 0.3), miss = std::log(0.4 / 0.6), top = std::log(0.97 / 0.03);
@@ -83,6 +112,24 @@ TEST(SensorPreset, LidarClearsAMovedObstacleAsFastAsOctoMap) {
   EXPECT_EQ(free_observations_to_clear(sensor_preset_params(SensorPreset::kDepthCamera), 20), lidar);
   // The sonar defaults keep a settled voxel far longer (speckle must not erase the seabed).
   EXPECT_GT(free_observations_to_clear(sensor_preset_params(SensorPreset::kSonar), 20), 3 * lidar);
+}
+
+// The other direction: an obstacle that appears where the map saw free space (a parked car, a
+// moved box) is occupied after 6 returns however long the space was free, because L_min is
+// OctoMap's lower clamp (OctoMap: 4; with L_min -10, 12 after 20 free observations and more
+// after longer); the sonar defaults take far longer.
+TEST(SensorPreset, LidarOccupiesANewObstacleInFreeSpaceWithinSixReturns) {
+  EXPECT_EQ(octomap_hits_to_occupy(20), 4);
+  IwloParams deep = sensor_preset_params(SensorPreset::kLidar);
+  deep.L_min = -10.0;
+  for (const double intensity : {0.0, 100.0, 255.0}) {
+    SCOPED_TRACE(intensity);
+    const int lidar = hits_to_occupy(sensor_preset_params(SensorPreset::kLidar), 20, intensity);
+    EXPECT_LE(lidar, 6);
+    EXPECT_EQ(hits_to_occupy(sensor_preset_params(SensorPreset::kLidar), 200, intensity), lidar);
+    EXPECT_GE(hits_to_occupy(deep, 20, intensity), 2 * lidar);
+  }
+  EXPECT_GT(hits_to_occupy(sensor_preset_params(SensorPreset::kSonar), 20, 200.0), 8);
 }
 
 TEST(SensorPreset, DepthCameraWeighsEveryReturnAlike) {

@@ -26,7 +26,9 @@ enum class SensorPreset {
   /// intensity of 0 is a return too): a single return makes its voxel occupied in a fresh map
   /// (p = 0.85). Moved obstacles clear as fast as in OctoMap: a voxel hit 20 times drops to
   /// p <= 0.7 after 7 free observations, as in OctoMap with its defaults (L_max 3.5 like
-  /// OctoMap's clamping at 0.97, L_free -1.35, adaptive scaling off).
+  /// OctoMap's clamping at 0.97, L_free -1.35, adaptive scaling off). The other way, an obstacle
+  /// that appears in space long seen free is occupied after 6 returns (OctoMap: 4), because L_min
+  /// is -2 like OctoMap's clamping at 0.12.
   kLidar,
   /// As kLidar, but intensities carry no meaning (a depth camera's points): every return with an
   /// intensity >= 0 is a hit of the same weight (intensity_max 0, so every such point has u = 1).

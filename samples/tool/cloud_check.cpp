@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "cloud_check.h"
 
+#include <iwlomap/filters/pointcloud2.h>
+
 #include "args.h"
 
 #include <algorithm>
@@ -255,40 +257,6 @@ CloudHeader check_ply(const std::string& path, std::uint64_t file_size) {
   return out;
 }
 
-// Reads one value of a field of type (datatype) at p as a double.
-double read_value(const std::uint8_t* p, std::uint8_t datatype) {
-  const auto get = [p](auto v) {
-    std::memcpy(&v, p, sizeof v);
-    return static_cast<double>(v);
-  };
-  switch (datatype) {
-    case pcl::PCLPointField::INT8: return get(std::int8_t{});
-    case pcl::PCLPointField::UINT8: return get(std::uint8_t{});
-    case pcl::PCLPointField::INT16: return get(std::int16_t{});
-    case pcl::PCLPointField::UINT16: return get(std::uint16_t{});
-    case pcl::PCLPointField::INT32: return get(std::int32_t{});
-    case pcl::PCLPointField::UINT32: return get(std::uint32_t{});
-    case pcl::PCLPointField::FLOAT32: return get(float{});
-    case pcl::PCLPointField::FLOAT64: return get(double{});
-    case pcl::PCLPointField::INT64: return get(std::int64_t{});
-    case pcl::PCLPointField::UINT64: return get(std::uint64_t{});
-    default: return std::numeric_limits<double>::quiet_NaN();
-  }
-}
-
-std::size_t datatype_size(std::uint8_t datatype) {
-  switch (datatype) {
-    case pcl::PCLPointField::INT8:
-    case pcl::PCLPointField::UINT8: return 1;
-    case pcl::PCLPointField::INT16:
-    case pcl::PCLPointField::UINT16: return 2;
-    case pcl::PCLPointField::INT32:
-    case pcl::PCLPointField::UINT32:
-    case pcl::PCLPointField::FLOAT32: return 4;
-    default: return 8;
-  }
-}
-
 }  // namespace
 
 CloudHeader check_cloud_file(const std::string& path) {
@@ -304,33 +272,11 @@ CloudHeader check_cloud_file(const std::string& path) {
 
 void blob_to_xyzi(const pcl::PCLPointCloud2& blob, float missing_intensity, const std::string& path,
                   pcl::PointCloud<pcl::PointXYZI>& out) {
-  const auto find = [&](const char* name) -> const pcl::PCLPointField* {
-    for (const auto& f : blob.fields)
-      if (f.name == name) {
-        if (f.offset + datatype_size(f.datatype) > blob.point_step)
-          fail(path, std::string("field '") + name + "' lies outside the point");
-        return &f;
-      }
-    return nullptr;
-  };
-  const pcl::PCLPointField* fx = find("x");
-  const pcl::PCLPointField* fy = find("y");
-  const pcl::PCLPointField* fz = find("z");
-  const pcl::PCLPointField* fi = find("intensity");
-  if (!fx || !fy || !fz) fail(path, "the cloud has no x, y, z fields");
-  const std::uint64_t n = static_cast<std::uint64_t>(blob.width) * blob.height;
-  if (n * blob.point_step > blob.data.size()) fail(path, "the data is shorter than the header says (truncated?)");
-  out.resize(static_cast<std::size_t>(n));
-  out.width = blob.width;
-  out.height = blob.height;
-  out.is_dense = false;
-  for (std::uint64_t i = 0; i < n; ++i) {
-    const std::uint8_t* p = blob.data.data() + i * blob.point_step;
-    pcl::PointXYZI& q = out[static_cast<std::size_t>(i)];
-    q.x = static_cast<float>(read_value(p + fx->offset, fx->datatype));
-    q.y = static_cast<float>(read_value(p + fy->offset, fy->datatype));
-    q.z = static_cast<float>(read_value(p + fz->offset, fz->datatype));
-    q.intensity = fi ? static_cast<float>(read_value(p + fi->offset, fi->datatype)) : missing_intensity;
+  try {
+    pointcloud2_to_xyzi(blob, out, missing_intensity);
+  } catch (const std::invalid_argument& e) {
+    const std::string what = e.what();
+    fail(path, what.rfind("iwlomap: ", 0) == 0 ? what.substr(9) : what);
   }
 }
 

@@ -14,6 +14,9 @@ IwloParams sensor_preset_params(SensorPreset preset) {
   // (tests/test_iwlo.cpp measures both).
   p.intensity_threshold = -1.0;
   p.L_max = 3.5;
+  // OctoMap's lower clamp (p = 0.12): an obstacle that appears in space long seen free is
+  // occupied after as many returns as in OctoMap (4-5), instead of the 10+ that L_min = -10 takes.
+  p.L_min = -2.0;
   p.log_odds_free = -1.35;
   p.adaptive_enabled = false;
   // Depth cameras: intensity 0 (or none: the callers' intensity_max) and anything above it is a

@@ -3,7 +3,8 @@
 
 /// \file
 /// OccupancyFilter: a pcl::Filter that integrates each input cloud into an IWLO occupancy map and
-/// returns the occupied voxels of the whole map.
+/// returns the occupied voxels of the whole map. A pcl::PCLPointCloud2 input goes through
+/// pointcloud2_to_xyzi() (pointcloud2.h) first.
 
 #include <iwlomap/iwlo.h>
 #include <iwlomap/mapper_backend.h>

@@ -1,0 +1,99 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#include "iwlomap/filters/pointcloud2.h"
+
+#include <cstdint>
+#include <cstring>
+#include <stdexcept>
+
+namespace iwlomap {
+
+namespace {
+
+// Bytes of one value of a PCLPointField datatype; 0 for an unknown type.
+std::size_t value_bytes(std::uint8_t datatype) {
+  switch (datatype) {
+    case pcl::PCLPointField::INT8:
+    case pcl::PCLPointField::UINT8: return 1;
+    case pcl::PCLPointField::INT16:
+    case pcl::PCLPointField::UINT16: return 2;
+    case pcl::PCLPointField::INT32:
+    case pcl::PCLPointField::UINT32:
+    case pcl::PCLPointField::FLOAT32: return 4;
+    case pcl::PCLPointField::FLOAT64:
+    case pcl::PCLPointField::INT64:
+    case pcl::PCLPointField::UINT64: return 8;
+    default: return 0;
+  }
+}
+
+// The value of a field of type \p datatype (value_bytes() > 0) at \p p.
+double read_value(const std::uint8_t* p, std::uint8_t datatype) {
+  const auto get = [p](auto v) {
+    std::memcpy(&v, p, sizeof v);
+    return static_cast<double>(v);
+  };
+  switch (datatype) {
+    case pcl::PCLPointField::INT8: return get(std::int8_t{});
+    case pcl::PCLPointField::UINT8: return get(std::uint8_t{});
+    case pcl::PCLPointField::INT16: return get(std::int16_t{});
+    case pcl::PCLPointField::UINT16: return get(std::uint16_t{});
+    case pcl::PCLPointField::INT32: return get(std::int32_t{});
+    case pcl::PCLPointField::UINT32: return get(std::uint32_t{});
+    case pcl::PCLPointField::FLOAT32: return get(float{});
+    case pcl::PCLPointField::FLOAT64: return get(double{});
+    case pcl::PCLPointField::INT64: return get(std::int64_t{});
+    default: return get(std::uint64_t{});
+  }
+}
+
+}  // namespace
+
+bool has_field(const pcl::PCLPointCloud2& blob, const std::string& name) {
+  for (const auto& f : blob.fields)
+    if (f.name == name) return true;
+  return false;
+}
+
+void pointcloud2_to_xyzi(const pcl::PCLPointCloud2& blob, pcl::PointCloud<pcl::PointXYZI>& out,
+                         float missing_intensity) {
+  const auto find = [&](const char* name) -> const pcl::PCLPointField* {
+    for (const auto& f : blob.fields) {
+      if (f.name != name) continue;
+      const std::size_t bytes = value_bytes(f.datatype);
+      if (bytes == 0)
+        throw std::invalid_argument(std::string("iwlomap: field '") + name + "' has unknown datatype " +
+                                    std::to_string(f.datatype));
+      if (static_cast<std::uint64_t>(f.offset) + bytes > blob.point_step)
+        throw std::invalid_argument(std::string("iwlomap: field '") + name + "' (offset " + std::to_string(f.offset) +
+                                    ", " + std::to_string(bytes) + " bytes) lies outside the point of " +
+                                    std::to_string(blob.point_step) + " bytes");
+      return &f;
+    }
+    return nullptr;
+  };
+  const pcl::PCLPointField* fx = find("x");
+  const pcl::PCLPointField* fy = find("y");
+  const pcl::PCLPointField* fz = find("z");
+  const pcl::PCLPointField* fi = find("intensity");
+  if (fx == nullptr || fy == nullptr || fz == nullptr)
+    throw std::invalid_argument("iwlomap: the cloud has no x, y and z fields");
+  const std::uint64_t n = static_cast<std::uint64_t>(blob.width) * blob.height;
+  if (n != 0 && (blob.point_step == 0 || n > blob.data.size() / blob.point_step))
+    throw std::invalid_argument("iwlomap: the cloud's data holds " + std::to_string(blob.data.size()) +
+                                " bytes, less than " + std::to_string(n) + " points of " +
+                                std::to_string(blob.point_step) + " bytes");
+  out.resize(static_cast<std::size_t>(n));
+  out.width = blob.width;
+  out.height = blob.height;
+  out.is_dense = false;
+  for (std::uint64_t i = 0; i < n; ++i) {
+    const std::uint8_t* p = blob.data.data() + i * blob.point_step;
+    pcl::PointXYZI& q = out[static_cast<std::size_t>(i)];
+    q.x = static_cast<float>(read_value(p + fx->offset, fx->datatype));
+    q.y = static_cast<float>(read_value(p + fy->offset, fy->datatype));
+    q.z = static_cast<float>(read_value(p + fz->offset, fz->datatype));
+    q.intensity = fi != nullptr ? static_cast<float>(read_value(p + fi->offset, fi->datatype)) : missing_intensity;
+  }
+}
+
+}  // namespace iwlomap
