@@ -555,6 +555,10 @@ TEST(OculusReader, MalformedOrTruncatedFilesNameTheFileAndOffset) {
   expect_format_error(bad, 98, "range resolution 10 m");
 
   bad = good;
+  put_f64(bad, 98, 1e-5);  // bins too fine for a sonar (1e-154 made min_range / bin overflow an int)
+  expect_format_error(bad, 98, "range resolution 1.0000000000000001e-05 m is not in [0.0001, 1] m");
+
+  bad = good;
   put_f64(bad, 21, 5000.0);  // a 5 km range
   expect_format_error(bad, 21, "range 5000 m");
 

@@ -113,10 +113,12 @@ using SonarImageF = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic>;
 /// centimetres.
 constexpr double kMaxSonarRange = 1000.0;           ///< metres
 constexpr double kMaxSonarRangeResolution = 1.0;    ///< metres per range bin
+constexpr double kMinSonarRangeResolution = 1e-4;   ///< metres per range bin (0.1 mm)
 
 struct SonarGeometry {
   std::vector<double> bearings;   ///< radians, one per beam (column), positive toward +Y
-  double range_resolution = 0.0;  ///< metres per range bin, in (0, kMaxSonarRangeResolution]
+  double range_resolution = 0.0;  ///< metres per range bin, in [kMinSonarRangeResolution,
+                                  ///< kMaxSonarRangeResolution]
   double min_range = 0.0;         ///< metres, >= 0: no evidence closer than this
   double max_range = 0.0;         ///< metres, in (min_range, kMaxSonarRange]: no evidence beyond
                                   ///< this (nor beyond the image's last bin, range_bins *

@@ -4,6 +4,8 @@
 #include "args.h"
 #include "cloud_check.h"
 
+#include <iwlomap/filters/pointcloud2.h>
+
 #include <Eigen/Geometry>
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/io/pcd_io.h>
@@ -18,9 +20,7 @@
 namespace iwlomap::tool {
 
 namespace {
-bool has_field(const pcl::PCLPointCloud2& c, const std::string& name) {
-  return std::any_of(c.fields.begin(), c.fields.end(), [&](const pcl::PCLPointField& f) { return f.name == name; });
-}
+
 void write_empty(const std::string& path, const std::string& ext, const std::string& shown_as) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   if (!out) throw std::runtime_error("cannot write '" + shown_as + "'");
@@ -32,6 +32,25 @@ void write_empty(const std::string& path, const std::string& ext, const std::str
            "property float intensity\nend_header\n";
   out.close();
   if (!out) throw std::runtime_error("cannot write '" + shown_as + "'");
+}
+
+// Reads \p path with PCL's reader for \p ext; for a PCD, first checks that PCL parses the header
+// as check_cloud_file() did. Returns PCL's code (< 0: failure).
+int read_with_pcl(const std::string& path, const std::string& ext, const CloudHeader& header, pcl::PCLPointCloud2& blob,
+                  Eigen::Vector4f& origin, Eigen::Quaternionf& orientation, int& version) {
+  if (ext != ".pcd") return pcl::PLYReader().read(path, blob, origin, orientation, version);
+  int data_type = 0;
+  unsigned int data_idx = 0;
+  const int rc = pcl::PCDReader().readHeader(path, blob, origin, orientation, version, data_type, data_idx);
+  if (rc < 0) return rc;
+  if (blob.fields.size() != header.fields || blob.point_step != header.point_size ||
+      static_cast<std::uint64_t>(blob.width) * blob.height != header.points)
+    throw std::runtime_error("'" + path + "': the header reads differently in PCL's parser (" +
+                             std::to_string(blob.fields.size()) + " fields of " + std::to_string(blob.point_step) +
+                             " bytes, expected " + std::to_string(header.fields) + " of " +
+                             std::to_string(header.point_size) + "): a header line inside the data?");
+  // PCL 1.13's PCDReader::read fails on an empty cloud: its header is all there is.
+  return header.points > 0 ? pcl::PCDReader().read(path, blob, origin, orientation, version) : rc;
 }
 
 }  // namespace
@@ -46,24 +65,19 @@ LoadedCloud load_cloud(const std::string& path, float missing_intensity) {
   Eigen::Quaternionf orientation = Eigen::Quaternionf::Identity();
   int version = 0;
   int rc = 0;
-  if (ext == ".pcd") {
-    // PCL's header parser does not stop at DATA in every case (a FIELDS or COLUMNS line inside a
-    // binary body replaces the header's fields), and its reader then works on a cloud without
-    // fields (a string of terabytes built from garbage, found by fuzzing): the cloud PCL's parser
-    // sees must be the one checked above.
-    int data_type = 0;
-    unsigned int data_idx = 0;
-    rc = pcl::PCDReader().readHeader(path, blob, origin, orientation, version, data_type, data_idx);
-    if (rc >= 0 && (blob.fields.size() != header.fields || blob.point_step != header.point_size ||
-                    static_cast<std::uint64_t>(blob.width) * blob.height != header.points))
-      throw std::runtime_error("'" + path + "': the header reads differently in PCL's parser (" +
-                               std::to_string(blob.fields.size()) + " fields of " + std::to_string(blob.point_step) +
-                               " bytes, expected " + std::to_string(header.fields) + " of " +
-                               std::to_string(header.point_size) + "): a header line inside the data?");
-    // PCL 1.13's PCDReader::read fails on an empty cloud: its header is all there is.
-    if (rc >= 0 && header.points > 0) rc = pcl::PCDReader().read(path, blob, origin, orientation, version);
-  } else {
-    rc = pcl::PLYReader().read(path, blob, origin, orientation, version);
+  // PCL's header parser goes on after the DATA line while the next lines look like header lines,
+  // so the first bytes of a binary body can replace the checked header's fields (its reader then
+  // builds a string of terabytes from a cloud without fields) or make it throw (a DATA line of one
+  // word: std::out_of_range), both found by fuzzing. The cloud PCL parses must be the one checked
+  // above, and whatever PCL throws becomes an error naming the file.
+  try {
+    rc = read_with_pcl(path, ext, header, blob, origin, orientation, version);
+  } catch (const std::bad_alloc&) {
+    throw std::runtime_error("'" + path + "': PCL's reader ran out of memory on this file");
+  } catch (const std::exception& e) {
+    const std::string what = e.what();
+    if (what.rfind("'" + path + "'", 0) == 0) throw;  // read_with_pcl()'s own, naming the file
+    throw std::runtime_error("'" + path + "': PCL's reader failed (" + what + "): a header line inside the data?");
   }
   if (rc < 0) throw std::runtime_error("'" + path + "': not a readable " + ext + " file");
   if (static_cast<std::uint64_t>(blob.width) * blob.height != header.points)

@@ -86,9 +86,9 @@ OculusPing parse_ping(const Reader& in, std::size_t at, std::size_t length) {
 
   if (data_size != 0)
     in.fail(at + 97, "data size " + std::to_string(data_size) + " (only 8-bit images, data size 0, are read)");
-  if (!(std::isfinite(ping.range_resolution) && ping.range_resolution > 0.0 &&
+  if (!(std::isfinite(ping.range_resolution) && ping.range_resolution >= kMinSonarRangeResolution &&
         ping.range_resolution <= kMaxSonarRangeResolution))
-    in.fail(at + 98, "range resolution " + number(ping.range_resolution) + " m is not in (0, 1] m");
+    in.fail(at + 98, "range resolution " + number(ping.range_resolution) + " m is not in [0.0001, 1] m");
   if (ping.range_bins == 0) in.fail(at + 106, "range bin count is 0");
   if (!(std::isfinite(ping.range) && ping.range > 0.0 && ping.range <= kMaxSonarRange))
     in.fail(at + 21, "range " + number(ping.range) + " m is not in (0, 1000] m");

@@ -58,8 +58,10 @@ void SonarGeometry::validate(int beams) const {
   for (std::size_t i = 0; i < bearings.size(); ++i)
     if (!(std::isfinite(bearings[i]) && std::abs(bearings[i]) < kPi))
       fail(what, ("bearings[" + std::to_string(i) + "]").c_str(), bearings[i], "must be finite radians in (-pi, pi)");
-  if (!(std::isfinite(range_resolution) && range_resolution > 0.0 && range_resolution <= kMaxSonarRangeResolution))
-    fail(what, "range_resolution", range_resolution, "must be in (0, 1] metres (kMaxSonarRangeResolution)");
+  if (!(std::isfinite(range_resolution) && range_resolution >= kMinSonarRangeResolution &&
+        range_resolution <= kMaxSonarRangeResolution))
+    fail(what, "range_resolution", range_resolution,
+         "must be in [0.0001, 1] metres (kMinSonarRangeResolution, kMaxSonarRangeResolution)");
   if (!(std::isfinite(min_range) && min_range >= 0.0)) fail(what, "min_range", min_range, "must be finite and >= 0");
   if (!(std::isfinite(max_range) && max_range > min_range && max_range <= kMaxSonarRange))
     fail(what, "max_range", max_range,
