@@ -10,6 +10,7 @@
 #include "reference_api_double.h"
 
 #include <gtest/gtest.h>
+#include <unistd.h>
 #include <pcl/console/print.h>
 #include <pcl/conversions.h>
 #include <pcl/filters/passthrough.h>
@@ -17,8 +18,10 @@
 #include <pcl/io/pcd_io.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
+#include <cstdlib>
 #include <filesystem>
 #include <functional>
 #include <limits>
@@ -671,6 +674,51 @@ TEST(OccupancyFilterData, OusterFramesGiveAGroundPlaneBelowTheSensor) {
   ASSERT_TRUE(above_road.has_value());
   EXPECT_LT(above_road->probability, 0.5);
 }
+
+// The lidar preset through the filter gives the map `iwlomap map --sensor lidar` gives: the same
+// occupied voxels with the same probabilities, on the three Ouster frames at 0.2 m.
+#ifdef IWLOMAP_TOOL_BINARY
+TEST(OccupancyFilterData, OusterFramesThroughTheLidarPresetMatchTheTool) {
+  const auto dir = data_dir() / "ouster_os1_128_3frames";
+  if (!std::filesystem::exists(dir)) GTEST_SKIP() << "recorded data not found at " << dir << "; test skipped";
+  std::vector<std::string> files;
+  for (int k = 0; k < 3; ++k) files.push_back((dir / ("frame_00" + std::to_string(k) + "_world.pcd")).string());
+  const std::string tool_out =
+      (std::filesystem::temp_directory_path() / ("iwlomap_filter_vs_tool_" + std::to_string(::getpid()) + ".pcd")).string();
+  std::string command = std::string("'") + IWLOMAP_TOOL_BINARY + "' map --sensor lidar --resolution 0.2 -q -o '" + tool_out + "'";
+  for (const std::string& f : files) command += " '" + f + "'";
+  ASSERT_EQ(std::system(command.c_str()), 0) << command;
+  Cloud from_tool;
+  ASSERT_EQ(pcl::io::loadPCDFile(tool_out, from_tool), 0);
+  std::filesystem::remove(tool_out);
+
+  Filter f;
+  f.setResolution(0.2);
+  f.setSensorPreset(iwlomap::SensorPreset::kLidar);
+  Cloud from_filter;
+  for (const std::string& file : files) {
+    pcl::PCLPointCloud2 blob;
+    Eigen::Vector4f origin;
+    Eigen::Quaternionf orientation;
+    ASSERT_EQ(pcl::io::loadPCDFile(file, blob, origin, orientation), 0);
+    auto frame = pcl::make_shared<Cloud>();
+    iwlomap::pointcloud2_to_xyzi(blob, *frame);
+    frame->sensor_origin_ = origin;
+    f.setInputCloud(frame);
+    f.filter(from_filter);
+  }
+  const auto rows = [](const Cloud& c) {
+    std::vector<std::array<float, 4>> r;
+    for (const auto& p : c) r.push_back({p.x, p.y, p.z, p.intensity});
+    std::sort(r.begin(), r.end());
+    return r;
+  };
+  std::cout << "[ ouster ] lidar preset, 3 frames at 0.2 m: " << from_filter.size() << " occupied voxels (filter), "
+            << from_tool.size() << " (tool)\n";
+  ASSERT_GT(from_filter.size(), 40000u);
+  EXPECT_EQ(rows(from_filter), rows(from_tool));
+}
+#endif
 
 TEST(OccupancyFilterData, OusterFramesGiveBitIdenticalMapsForAnyThreadCount) {
   const auto dir = data_dir() / "ouster_os1_128_3frames";
