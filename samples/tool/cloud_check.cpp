@@ -69,6 +69,32 @@ HeaderLines read_header(const std::string& path, std::ifstream& in, const std::s
   fail(path, "the header ends before its " + last + " line (truncated or not a cloud file)");
 }
 
+// PCL's PCD header parser does not stop at the DATA line: it goes on past empty lines and comments
+// while the next line starts with a header keyword (as a prefix of its first word), so the first
+// bytes of a binary body can add header lines: other fields, a WIDTH that allocates gigabytes, a
+// DATA line that throws (all found by fuzzing). Skipped empty and comment lines are harmless (the
+// data still starts after the DATA line). Refuses a body whose first lines PCL would read so.
+void check_body_start(const std::string& path, std::uint64_t data_offset) {
+  static const char* const kKeywords[] = {"VERSION", "FIELDS", "COLUMNS", "SIZE", "TYPE",  "COUNT",
+                                          "WIDTH",   "HEIGHT", "VIEWPOINT", "POINTS", "DATA"};
+  std::ifstream in(path, std::ios::binary);
+  in.seekg(static_cast<std::streamoff>(data_offset));
+  std::string line;
+  std::uint64_t scanned = 0;
+  while (std::getline(in, line) && scanned <= kMaxHeaderBytes) {
+    scanned += line.size() + 1;
+    std::istringstream words_of(line);
+    std::string first;
+    words_of >> first;
+    if (line.empty() || (!first.empty() && first[0] == '#')) continue;
+    for (const char* k : kKeywords)
+      if (first.rfind(k, 0) == 0)
+        fail(path, std::string("the data after the DATA line starts with a line that PCL's reader would take as a ") +
+                       k + " header line");
+    return;
+  }
+}
+
 std::uint64_t lines_after(std::ifstream& in, std::uint64_t limit) {
   std::uint64_t n = 0;
   std::vector<char> buf(1 << 16);
@@ -160,6 +186,7 @@ CloudHeader check_pcd(const std::string& path, std::uint64_t file_size) {
     fail(path, "POINTS is " + std::to_string(*points) + " but WIDTH x HEIGHT is " + std::to_string(out.points));
   const std::uint64_t body = file_size - std::min(file_size, h.data_offset);
   const std::uint64_t need = out.points * point_size;  // points < 2^64 / 2^20: fits
+  check_body_start(path, h.data_offset);
   if (data == "binary") {
     if (need > body)
       fail(path, "the header promises " + std::to_string(out.points) + " points of " + std::to_string(point_size) +

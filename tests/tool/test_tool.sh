@@ -274,9 +274,11 @@ pcd viewpoint_nan.pcd "4 4 4 4" "$F4" "1 1 1 1" 1 "nan 0 0 1 0 0 0" ascii '1 2 3
 hostile viewpoint_nan.pcd VIEWPOINT
 # A header line inside the binary body, which PCL's parser reads as the header's (found by fuzzing).
 pcd header_in_body.pcd "4 4 4 4" "$F4" "1 1 1 1" 3 "$V" binary 'COLUMNS@\x00\x00@@\x00!.P\x01ply\nformat ascii 0.4\nelem\x00\x00\x00\x00\x00\x00ent vertex'
-hostile header_in_body.pcd "header line inside the data"
+hostile header_in_body.pcd "take as a COLUMNS header line"
 pcd data_word_in_body.pcd "4 4 4 4" "$F4" "1 1 1 1" 3 "$V" binary 'COUNT 1 1 1 1\nDATA\nxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx'
-hostile data_word_in_body.pcd "PCL's reader failed"
+hostile data_word_in_body.pcd "take as a COUNT header line"
+pcd width_in_body.pcd "4 4 4 4" "$F4" "1 1 1 1" 3 "$V" binary '\nWIDTH 1000000000\nxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx'
+hostile width_in_body.pcd "take as a WIDTH header line"
 printf '# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 5\n' >"$WORK/header_truncated.pcd"
 hostile header_truncated.pcd DATA
 printf 'ply\nformat binary_little_endian 1.0\nelement vertex 4294967296\nproperty float x\nproperty float y\nproperty float z\nend_header\n0123456789ab' >"$WORK/vertex_huge.ply"
