@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 
@@ -27,63 +28,45 @@ double single_return(const IwloParams& params, double intensity) {
   return probability_of(map, Eigen::Vector3d(3.05, 0.05, 0.05));
 }
 
-// Free observations after \p hits hits until the voxel is no longer occupied (p <= 0.7).
-int free_observations_to_clear(const IwloParams& params, int hits) {
-  ProbabilityUpdater map(0.1);
-  map.set_params(params);
-  Eigen::MatrixXd point(1, 3);
-  point << 1.05, 1.05, 1.05;
-  const Eigen::VectorXd bright = Eigen::VectorXd::Constant(1, 200.0);
-  for (int i = 0; i < hits; ++i) map.batch_update_iwlo(point, bright, {true});
-  int n = 0;
-  while (probability_of(map, point.row(0).transpose()) > params.occupied_threshold && n < 1000) {
-    map.batch_update_iwlo(point, bright, {false});
-    ++n;
-  }
-  return n;
-}
-
-// Hits (intensity \p intensity) after \p frees free observations until the voxel is occupied (p > 0.7).
-int hits_to_occupy(const IwloParams& params, int frees, double intensity) {
+// Observations of the other kind after \p first observations of one kind (hits when
+// \p hits_first, else free) of intensity \p intensity, until the voxel crosses the occupied
+// threshold (p > 0.7 to p <= 0.7 after hits, the other way after free observations).
+int observations_to_flip(const IwloParams& params, bool hits_first, int first, double intensity) {
   ProbabilityUpdater map(0.1);
   map.set_params(params);
   Eigen::MatrixXd point(1, 3);
   point << 1.05, 1.05, 1.05;
   const Eigen::VectorXd value = Eigen::VectorXd::Constant(1, intensity);
-  for (int i = 0; i < frees; ++i) map.batch_update_iwlo(point, value, {false});
+  for (int i = 0; i < first; ++i) map.batch_update_iwlo(point, value, {hits_first});
   int n = 0;
-  while (probability_of(map, point.row(0).transpose()) <= params.occupied_threshold && n < 1000) {
-    map.batch_update_iwlo(point, value, {true});
+  while ((probability_of(map, point.row(0).transpose()) > params.occupied_threshold) == hits_first && n < 1000) {
+    map.batch_update_iwlo(point, value, {!hits_first});
     ++n;
   }
   return n;
 }
 
-// OctoMap's count of hits after \p frees misses until p > 0.7 (its defaults, clamping at 0.12).
-int octomap_hits_to_occupy(int frees) {
-  const double hit = std::log(0.7 / 0.3), miss = std::log(0.4 / 0.6), bottom = std::log(0.1192 / 0.8808);
+int free_observations_to_clear(const IwloParams& params, int hits) { return observations_to_flip(params, true, hits, 200.0); }
+int hits_to_occupy(const IwloParams& params, int frees, double intensity) {
+  return observations_to_flip(params, false, frees, intensity);
+}
+
+// The same count in OctoMap with its defaults (hit 0.7, miss 0.4, clamping at 0.12 and 0.97).
+int octomap_observations_to_flip(bool hits_first, int first) {
+  const double hit = std::log(0.7 / 0.3), miss = std::log(0.4 / 0.6);
+  const double bottom = std::log(0.1192 / 0.8808), top = std::log(0.97 / 0.03);
   double l = 0.0;
-  for (int i = 0; i < frees; ++i) l = std::max(bottom, l + miss);
+  for (int i = 0; i < first; ++i) l = std::clamp(l + (hits_first ? hit : miss), bottom, top);
   int n = 0;
-  while (1.0 / (1.0 + std::exp(-l)) <= 0.7) {
-    l += hit;
+  while ((1.0 / (1.0 + std::exp(-l)) > 0.7) == hits_first) {
+    l = std::clamp(l + (hits_first ? miss : hit), bottom, top);
     ++n;
   }
   return n;
 }
 
-// OctoMap's own count with its defaults (hit 0.7, miss 0.4, clamping at 0.97), the same rule.
-int octomap_free_observations_to_clear(int hits) {
-  const double hit = std::log(0.7 / 0.3), miss = std::log(0.4 / 0.6), top = std::log(0.97 / 0.03);
-  double l = 0.0;
-  for (int i = 0; i < hits; ++i) l = std::min(top, l + hit);
-  int n = 0;
-  while (1.0 / (1.0 + std::exp(-l)) > 0.7) {
-    l += miss;
-    ++n;
-  }
-  return n;
-}
+int octomap_free_observations_to_clear(int hits) { return octomap_observations_to_flip(true, hits); }
+int octomap_hits_to_occupy(int frees) { return octomap_observations_to_flip(false, frees); }
 
 TEST(SensorPreset, SonarIsTheReferenceDefaults) {
   const IwloParams s = sensor_preset_params(SensorPreset::kSonar), d;

@@ -154,6 +154,7 @@ MapSetup map_setup_from(const Args& args) {
     if (!tiles) throw UsageError("--backend disk needs --tiles DIR");
     options.directory = *tiles;
     options.tile_size = args.number("--tile-size", options.tile_size);
+    if (!(options.tile_size > 0.0)) throw UsageError("--tile-size must be > 0 metres");
     const long cache = args.integer("--cache-tiles", static_cast<long>(options.cache_tiles));
     if (cache < 1) throw UsageError("--cache-tiles must be >= 1");
     options.cache_tiles = static_cast<std::size_t>(cache);

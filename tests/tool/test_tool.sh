@@ -155,6 +155,13 @@ check threads_trailing 2 "$TOOL" map "$WORK/scan.pcd" --threads 2x
 check cache_tiles_space 2 "$TOOL" map "$WORK/scan.pcd" --backend disk --tiles "$WORK/t_space" --cache-tiles " 3"
 check rings_beyond_int 2 "$TOOL" generate -o "$WORK/g.pcd" --rings 4294967297
 expect rings_beyond_int_one_line one_line rings_beyond_int
+check threads_2_31 2 "$TOOL" map "$WORK/scan.pcd" --threads 2147483648
+expect threads_2_31_names_value grep -q "2147483648" "$WORK/threads_2_31.err"
+check threads_2_32_plus_1 2 "$TOOL" map "$WORK/scan.pcd" --threads 4294967297
+check cache_tiles_2_64 2 "$TOOL" map "$WORK/scan.pcd" --backend disk --tiles "$WORK/t_big" --cache-tiles 18446744073709551615
+check tile_size_zero 2 "$TOOL" map "$WORK/scan.pcd" --backend disk --tiles "$WORK/t_zero" --tile-size 0
+check resolution_zero 2 "$TOOL" map "$WORK/scan.pcd" --resolution 0
+expect bad_values_leave_no_map_dir bash -c "test ! -e '$WORK/t_big' && test ! -e '$WORK/t_zero'"
 
 # The same scan as .ply gives the same map.
 check pcl_pcd2ply_scan 0 pcl_pcd2ply "$WORK/scan.pcd" "$WORK/scan.ply"
@@ -304,6 +311,15 @@ expect zeros_lidar_no_warning test ! -s "$WORK/zeros_lidar.err"
 expect zeros_lidar_maps bash -c "grep -q 'lidar preset: .* [1-9][0-9]* occupied' '$WORK/zeros_lidar.out'"
 check zeros_depth 0 "$TOOL" map "$WORK/zeros.pcd" --resolution 0.2 --sensor depth
 expect zeros_depth_maps bash -c "grep -q 'depth preset: .* [1-9][0-9]* occupied' '$WORK/zeros_depth.out'"
+
+# A full disk (a 4 KiB file size limit, SIGXFSZ ignored so writes fail with EFBIG): the run fails
+# in one line, and neither the output nor a temporary is left, for .ply as for .pcd.
+for ext in ply pcd; do
+  check "full_disk_$ext" 1 bash -c "trap '' XFSZ; ulimit -f 4; exec '$TOOL' map '$WORK/scan.pcd' --resolution 0.2 --sensor lidar -q -o '$WORK/full_out.$ext'"
+  expect "full_disk_${ext}_one_line" one_line "full_disk_$ext"
+  expect "full_disk_${ext}_no_output" test ! -e "$WORK/full_out.$ext"
+  expect "full_disk_${ext}_no_temporaries" bash -c "! ls -A '$WORK' | grep -q '^\.full_out'"
+done
 
 # Memory: a stray return 1,000 km out is skipped with one warning, not cast across millions of
 # voxels; a resolution far too fine for the cloud stops with the memory error naming what to
