@@ -894,16 +894,16 @@ TEST(PointCloud2, FiltersAsTheTypedCloudDoes) {
   Cloud::Ptr converted(new Cloud);
   iwlomap::pointcloud2_to_xyzi(blob, *converted);
   converted->sensor_origin_ = typed->sensor_origin_;
-  Cloud a, b;
-  Filter fa, fb;
-  fa.setResolution(0.1);
-  fb.setResolution(0.1);
-  fa.setSensorPreset(iwlomap::SensorPreset::kLidar);
-  fb.setSensorPreset(iwlomap::SensorPreset::kLidar);
-  fa.setInputCloud(typed);
-  fa.filter(a);
-  fb.setInputCloud(converted);
-  fb.filter(b);
+  const auto lidar_map_of = [](const Cloud::Ptr& in) {
+    Filter f;
+    f.setResolution(0.1);
+    f.setSensorPreset(iwlomap::SensorPreset::kLidar);
+    f.setInputCloud(in);
+    Cloud out;
+    f.filter(out);
+    return out;
+  };
+  const Cloud a = lidar_map_of(typed), b = lidar_map_of(converted);
   ASSERT_GT(a.size(), 100u);
   ASSERT_EQ(a.size(), b.size());
   for (std::size_t i = 0; i < a.size(); ++i) {

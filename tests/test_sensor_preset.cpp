@@ -99,8 +99,8 @@ TEST(SensorPreset, LidarClearsAMovedObstacleAsFastAsOctoMap) {
 
 // The other direction: an obstacle that appears where the map saw free space (a parked car, a
 // moved box) is occupied after 6 returns however long the space was free, because L_min is
-// OctoMap's lower clamp (OctoMap: 4; with L_min -10, 12 after 20 free observations and more
-// after longer); the sonar defaults take far longer.
+// OctoMap's lower clamp (OctoMap: 4; with L_min -10, 21 after 20 free observations); the sonar
+// defaults take far longer.
 TEST(SensorPreset, LidarOccupiesANewObstacleInFreeSpaceWithinSixReturns) {
   EXPECT_EQ(octomap_hits_to_occupy(20), 4);
   IwloParams deep = sensor_preset_params(SensorPreset::kLidar);

@@ -34,8 +34,13 @@ void write_empty(const std::string& path, const std::string& ext, const std::str
   if (!out) throw std::runtime_error("cannot write '" + shown_as + "'");
 }
 
+// A PCD header that PCL's parser reads otherwise than check_cloud_file() did.
+struct HeaderMismatch : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
 // Reads \p path with PCL's reader for \p ext; for a PCD, first checks that PCL parses the header
-// as check_cloud_file() did. Returns PCL's code (< 0: failure).
+// as check_cloud_file() did (HeaderMismatch otherwise). Returns PCL's code (< 0: failure).
 int read_with_pcl(const std::string& path, const std::string& ext, const CloudHeader& header, pcl::PCLPointCloud2& blob,
                   Eigen::Vector4f& origin, Eigen::Quaternionf& orientation, int& version) {
   if (ext != ".pcd") return pcl::PLYReader().read(path, blob, origin, orientation, version);
@@ -45,7 +50,7 @@ int read_with_pcl(const std::string& path, const std::string& ext, const CloudHe
   if (rc < 0) return rc;
   if (blob.fields.size() != header.fields || blob.point_step != header.point_size ||
       static_cast<std::uint64_t>(blob.width) * blob.height != header.points)
-    throw std::runtime_error("'" + path + "': the header reads differently in PCL's parser (" +
+    throw HeaderMismatch("'" + path + "': the header reads differently in PCL's parser (" +
                              std::to_string(blob.fields.size()) + " fields of " + std::to_string(blob.point_step) +
                              " bytes, expected " + std::to_string(header.fields) + " of " +
                              std::to_string(header.point_size) + "): a header line inside the data?");
@@ -65,19 +70,16 @@ LoadedCloud load_cloud(const std::string& path, float missing_intensity) {
   Eigen::Quaternionf orientation = Eigen::Quaternionf::Identity();
   int version = 0;
   int rc = 0;
-  // PCL's header parser goes on after the DATA line while the next lines look like header lines,
-  // so the first bytes of a binary body can replace the checked header's fields (its reader then
-  // builds a string of terabytes from a cloud without fields) or make it throw (a DATA line of one
-  // word: std::out_of_range), both found by fuzzing. The cloud PCL parses must be the one checked
-  // above, and whatever PCL throws becomes an error naming the file.
+  // check_cloud_file() refuses the data PCL's parser would read as header lines (found by
+  // fuzzing); should PCL still parse another header or throw, the error names the file.
   try {
     rc = read_with_pcl(path, ext, header, blob, origin, orientation, version);
+  } catch (const HeaderMismatch&) {
+    throw;
   } catch (const std::bad_alloc&) {
     throw std::runtime_error("'" + path + "': PCL's reader ran out of memory on this file");
   } catch (const std::exception& e) {
-    const std::string what = e.what();
-    if (what.rfind("'" + path + "'", 0) == 0) throw;  // read_with_pcl()'s own, naming the file
-    throw std::runtime_error("'" + path + "': PCL's reader failed (" + what + "): a header line inside the data?");
+    throw std::runtime_error("'" + path + "': PCL's reader failed (" + e.what() + "): a header line inside the data?");
   }
   if (rc < 0) throw std::runtime_error("'" + path + "': not a readable " + ext + " file");
   if (static_cast<std::uint64_t>(blob.width) * blob.height != header.points)

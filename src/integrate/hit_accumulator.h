@@ -12,6 +12,7 @@
 // scan's rays go into an accumulator of their own (ray order), which is then merged into the
 // map's (merge()), block by block; a batch adds its rows in call order.
 
+#include "integrate/scan_ray.h"
 #include "model/checks.h"
 #include "storage/block_grid.h"
 #include "storage/flat_key_map.h"
@@ -92,24 +93,20 @@ class HitAccumulator {
 
   /// The statistics of a scan the map has applied, per ray as GMapping counts beams (see
   /// hit_statistics.h), into this accumulator (a scan's own, merged into the map's afterwards).
-  /// The rays are cast again because the scan scratch merges them per voxel; the endpoint
-  /// arithmetic is ScanScratch::collect_range()'s, so the voxels are the same.
+  /// The rays are cast again because the scan scratch merges them per voxel; their ends come
+  /// from scan_ray_end(), as the scratch's do, so the voxels are the same.
   void add_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                 double max_range, double intensity_threshold) {
-    const bool clip = max_range > 0.0;
     const double longest = kMaxRayVoxels * resolution_;
     const auto visit = [this](const VoxelKey& k) { add_visit(k); };
     for (Eigen::Index i = 0; i < points.rows(); ++i) {
       const Eigen::Vector3d p = points.row(i).transpose();
       const double intensity = intensities[i];
       if (!p.allFinite() || !std::isfinite(intensity)) continue;
-      const Eigen::Vector3d d = p - origin;
-      const double range = d.norm();
-      const bool beyond = clip && range > max_range;
-      if ((beyond ? max_range : range) > longest) continue;
-      const Eigen::Vector3d end_point = beyond ? Eigen::Vector3d(origin + d * (max_range / range)) : p;
-      cast_ray(origin, end_point, resolution_, visit);
-      if (beyond) continue;
+      const ScanRayEnd ray = scan_ray_end(origin, p, max_range, longest);
+      if (!ray.cast) continue;
+      cast_ray(origin, ray.end, resolution_, visit);
+      if (ray.clipped) continue;
       if (intensity > intensity_threshold)
         add_hit(world_to_key(p, resolution_), p);
       else

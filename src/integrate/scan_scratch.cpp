@@ -4,6 +4,7 @@
 #include "integrate/batch_input.h"
 #include "storage/free_memory.h"
 #include "storage/memory_limit.h"
+#include "integrate/scan_ray.h"
 #include "iwlomap/ray_caster.h"
 
 #include <algorithm>
@@ -52,7 +53,6 @@ void ScanScratch::clear() {
 std::size_t ScanScratch::collect_range(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                        const Eigen::VectorXd& intensities, double max_range, double resolution,
                                        Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad) {
-  const bool clip = max_range > 0.0;
   const double longest = kMaxRayVoxels * resolution;
   std::size_t skipped = 0;
   const auto mark = [this](const VoxelKey& k) { mark_free(k); };
@@ -63,21 +63,18 @@ std::size_t ScanScratch::collect_range(const Eigen::Vector3d& origin, const Eige
       ++skipped;
       continue;
     }
-    const Eigen::Vector3d d = p - origin;
-    const double range = d.norm();
-    const bool beyond = clip && range > max_range;
-    if ((beyond ? max_range : range) > longest) {
+    const ScanRayEnd ray = scan_ray_end(origin, p, max_range, longest);
+    if (!ray.cast) {
       ++skipped;
       continue;
     }
-    const Eigen::Vector3d end_point = beyond ? Eigen::Vector3d(origin + d * (max_range / range)) : p;
-    if (!is_representable(end_point, resolution)) {
+    if (!is_representable(ray.end, resolution)) {
       if (first_bad == nullptr) throw_out_of_range(i, p, resolution);
       *first_bad = std::min(*first_bad, i);
       continue;
     }
-    cast_ray(origin, end_point, resolution, mark);
-    if (!beyond) add_hit(world_to_key(p, resolution), intensity);
+    cast_ray(origin, ray.end, resolution, mark);
+    if (!ray.clipped) add_hit(world_to_key(p, resolution), intensity);
   }
   return skipped;
 }

@@ -11,11 +11,12 @@ IwloParams sensor_preset_params(SensorPreset preset) {
   IwloParams p;
   if (preset == SensorPreset::kSonar) return p;
   // Lidar: a return is a surface whatever its reflectivity; the clearing speed follows OctoMap
-  // (tests/test_iwlo.cpp measures both).
+  // (tests/test_sensor_preset.cpp measures both).
   p.intensity_threshold = -1.0;
   p.L_max = 3.5;
   // OctoMap's lower clamp (p = 0.12): an obstacle that appears in space long seen free is
-  // occupied after as many returns as in OctoMap (4-5), instead of the 10+ that L_min = -10 takes.
+  // occupied after 6 returns (OctoMap: 4), instead of the 21 that L_min = -10 takes after 20 free
+  // observations (tests/test_sensor_preset.cpp).
   p.L_min = -2.0;
   p.log_odds_free = -1.35;
   p.adaptive_enabled = false;

@@ -41,20 +41,23 @@ namespace iwlomap::detail {
 std::size_t map_memory_in_use() noexcept { return g_in_use.load(std::memory_order_relaxed); }
 std::size_t map_memory_limit() noexcept { return g_limit.load(std::memory_order_relaxed); }
 
-void check_map_memory(std::size_t extra, const char* what) {
+namespace {
+
+// Throws when \p extra bytes on top of \p in_use would pass the limit (none when it is 0).
+void refuse_past_limit(std::size_t in_use, std::size_t extra, const char* what) {
   const std::size_t limit = map_memory_limit();
-  if (limit == 0) return;
-  const std::size_t in_use = map_memory_in_use();
-  if (extra > limit || in_use > limit - extra) throw MemoryLimitError(extra, in_use, limit, what);
+  if (limit != 0 && (extra > limit || in_use > limit - extra)) throw MemoryLimitError(extra, in_use, limit, what);
 }
+
+}  // namespace
+
+void check_map_memory(std::size_t extra, const char* what) { refuse_past_limit(map_memory_in_use(), extra, what); }
 
 void charge_map_memory(std::size_t bytes) {
   // Compare and add in one step, so that maps filled on several threads never pass the limit together.
   std::size_t in_use = g_in_use.load(std::memory_order_relaxed);
   do {
-    const std::size_t limit = map_memory_limit();
-    if (limit != 0 && (bytes > limit || in_use > limit - bytes))
-      throw MemoryLimitError(bytes, in_use, limit, "a map's next slab");
+    refuse_past_limit(in_use, bytes, "a map's next slab");
   } while (!g_in_use.compare_exchange_weak(in_use, in_use + bytes, std::memory_order_relaxed));
 }
 
