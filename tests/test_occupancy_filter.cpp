@@ -598,6 +598,105 @@ TEST(OccupancyFilter, EveryPrecompiledPointTypeMaps) {
                                                [](const pcl::PointXYZINormal& p, int) { return p.normal_x == 1.0f; });
 }
 
+// Colour means: two voxels of a wall at 0.1 m, hit by points of known colours; the output
+// carries the rounded mean of each voxel's hits, by hand: voxel y in [0, 0.1): r (10 + 20 + 31) / 3
+// = 20.33 -> 20, g 100, b (0 + 1 + 1) / 3 = 0.67 -> 1; voxel y in [0.1, 0.2): (200 + 201) / 2 =
+// 200.5 -> 201, g 50, b 255.
+template <class PointT>
+void expect_colour_means() {
+  auto c = pcl::make_shared<pcl::PointCloud<PointT>>();
+  const auto add = [&](float y, std::uint8_t r, std::uint8_t g, std::uint8_t b) {
+    PointT p;
+    p.x = 2.05f;
+    p.y = y;
+    p.z = 0.05f;
+    p.r = r;
+    p.g = g;
+    p.b = b;
+    c->push_back(p);
+  };
+  add(0.02f, 10, 100, 0);
+  add(0.05f, 20, 100, 1);
+  add(0.08f, 31, 100, 1);
+  add(0.12f, 200, 50, 255);
+  add(0.18f, 201, 50, 255);
+  c->sensor_origin_ = Eigen::Vector4f(0.05f, 0.05f, 0.05f, 0.0f);
+  iwlomap::OccupancyFilter<PointT> f;
+  EXPECT_TRUE(f.getColorMeans());
+  f.setResolution(0.1);
+  f.setInputCloud(c);
+  pcl::PointCloud<PointT> out;
+  f.filter(out);
+  ASSERT_EQ(out.size(), 2u);
+  for (const auto& p : out) {
+    if (p.y < 0.1f)
+      EXPECT_EQ(std::make_tuple(int{p.r}, int{p.g}, int{p.b}), std::make_tuple(20, 100, 1));
+    else
+      EXPECT_EQ(std::make_tuple(int{p.r}, int{p.g}, int{p.b}), std::make_tuple(201, 50, 255));
+  }
+  ASSERT_NE(f.getVoxelColors(), nullptr);
+  EXPECT_EQ(f.getVoxelColors()->hits(Eigen::Vector3d(2.05, 0.05, 0.05)), 3u);
+  // A second frame adds to the running mean: (10 + 20 + 31 + 255) / 4 = 79 in r.
+  auto more = pcl::make_shared<pcl::PointCloud<PointT>>();
+  more->push_back(c->front());
+  (*more)[0].r = 255;
+  more->sensor_origin_ = c->sensor_origin_;
+  f.setInputCloud(more);
+  f.setOutputMeanPositions(true);  // the mean position lies in the same voxel: same colour
+  f.filter(out);
+  for (const auto& p : out)
+    if (p.y < 0.1f) {
+      EXPECT_EQ(int{p.r}, 79);
+    }
+  // Off: the colours are forgotten and the output is black.
+  f.setColorMeans(false);
+  EXPECT_EQ(f.getVoxelColors(), nullptr);
+  f.filter(out);
+  ASSERT_EQ(out.size(), 2u);
+  for (const auto& p : out) EXPECT_EQ(std::make_tuple(int{p.r}, int{p.g}, int{p.b}), std::make_tuple(0, 0, 0));
+}
+
+TEST(OccupancyFilter, ColourTypesOutputTheMeanColourOfEachVoxel) {
+  expect_colour_means<pcl::PointXYZRGB>();
+  expect_colour_means<pcl::PointXYZRGBA>();
+  Filter grey;
+  EXPECT_FALSE(grey.getColorMeans());
+  EXPECT_THROW(grey.setColorMeans(true), std::invalid_argument);
+  grey.setColorMeans(false);
+}
+
+// A colour hit is counted where the map counts a hit: below the intensity threshold (a type with
+// intensity has none here, so the preset's threshold decides) and beyond the range, no colour.
+TEST(OccupancyFilter, ColourMeansFollowTheMapsHits) {
+  auto c = pcl::make_shared<pcl::PointCloud<pcl::PointXYZRGB>>();
+  for (int i = 0; i < 50; ++i) {
+    pcl::PointXYZRGB p;
+    p.x = 2.05f + 0.1f * static_cast<float>(i % 5);  // one point per voxel
+    p.y = 0.01f + 0.02f * static_cast<float>(i);
+    p.z = 0.05f;
+    p.r = static_cast<std::uint8_t>(5 * i);
+    c->push_back(p);
+  }
+  c->sensor_origin_ = Eigen::Vector4f(0.0f, 0.0f, 0.05f, 0.0f);
+  iwlomap::OccupancyFilter<pcl::PointXYZRGB> f;
+  f.setResolution(0.1);
+  f.setMaxRange(2.25);
+  f.setInputCloud(c);
+  pcl::PointCloud<pcl::PointXYZRGB> out;
+  f.filter(out);
+  const auto colors = f.getVoxelColors();
+  ASSERT_NE(colors, nullptr);
+  std::size_t coloured = 0;
+  for (const auto& p : *c) {
+    const Eigen::Vector3d q(p.x, p.y, p.z);
+    const bool within = (q - Eigen::Vector3d(0, 0, 0.05)).norm() <= 2.25;
+    EXPECT_EQ(colors->mean(q).has_value(), within) << q.transpose();
+    coloured += within ? 1 : 0;
+  }
+  EXPECT_GT(coloured, 10u);
+  EXPECT_GT(out.size(), 5u);
+}
+
 std::filesystem::path data_dir() { return IWLOMAP_SHARED_DATA_DIR; }
 
 Cloud::Ptr load_or_skip(const std::filesystem::path& path) {
@@ -850,6 +949,41 @@ TEST(PointCloud2, ConvertsEveryNumericTypeAndKeepsTheOrganisation) {
   EXPECT_EQ(out[3].intensity, 42.0f);
   EXPECT_TRUE(iwlomap::has_field(double_blob(), "intensity"));
   EXPECT_FALSE(iwlomap::has_field(no_intensity, "intensity"));
+}
+
+// PCL's packed colours, from a typed cloud's conversion (float32 rgb, uint32 rgba) and by hand.
+TEST(PointCloud2, ReadsPackedColoursOfEitherFieldType) {
+  pcl::PointCloud<pcl::PointXYZRGB> rgb;
+  pcl::PointCloud<pcl::PointXYZRGBA> rgba;
+  for (int i = 0; i < 3; ++i) {
+    pcl::PointXYZRGB p(static_cast<std::uint8_t>(10 * i), 20, static_cast<std::uint8_t>(250 - i));
+    rgb.push_back(p);
+    pcl::PointXYZRGBA q;
+    q.r = 1;
+    q.g = static_cast<std::uint8_t>(i);
+    q.b = 3;
+    q.a = 4;
+    rgba.push_back(q);
+  }
+  pcl::PCLPointCloud2 a, b;
+  pcl::toPCLPointCloud2(rgb, a);
+  pcl::toPCLPointCloud2(rgba, b);
+  const auto ca = iwlomap::pointcloud2_colors(a);
+  const auto cb = iwlomap::pointcloud2_colors(b);
+  ASSERT_TRUE(ca && cb);
+  ASSERT_EQ(ca->rows(), 3);
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_EQ(std::make_tuple(int{(*ca)(i, 0)}, int{(*ca)(i, 1)}, int{(*ca)(i, 2)}), std::make_tuple(10 * i, 20, 250 - i));
+    EXPECT_EQ(std::make_tuple(int{(*cb)(i, 0)}, int{(*cb)(i, 1)}, int{(*cb)(i, 2)}), std::make_tuple(1, i, 3));
+  }
+  EXPECT_FALSE(iwlomap::pointcloud2_colors(double_blob()).has_value());
+  pcl::PCLPointCloud2 wide = a;
+  for (auto& f : wide.fields)
+    if (f.name == "rgb") f.datatype = pcl::PCLPointField::FLOAT64;
+  EXPECT_THROW((void)iwlomap::pointcloud2_colors(wide), std::invalid_argument);
+  pcl::PCLPointCloud2 short_data = a;
+  short_data.data.resize(short_data.point_step);
+  EXPECT_THROW((void)iwlomap::pointcloud2_colors(short_data), std::invalid_argument);
 }
 
 TEST(PointCloud2, ThrowsNamingTheProblemWhenTheBlobIsInconsistent) {

@@ -31,6 +31,7 @@
 #include <stdexcept>
 #include <string>
 #include <thread>
+#include <tuple>
 #include <vector>
 
 namespace iwlomap::viewer {
@@ -407,6 +408,23 @@ TEST(SnapshotRenderer, RejectsBadInputNamingTheValue) {
             std::string::npos);
 }
 
+// Each voxel in its own colour: three voxels and the corners that fix the framing.
+TEST(SnapshotRenderer, RgbColoursDrawEachVoxelInItsOwnColour) {
+  SnapshotOptions o = flat_top_view(200, 200);
+  o.color_by = ColorBy::kRgb;
+  const Eigen::MatrixXd v = rows({{-9.5, -9.5, 0, 1}, {9.5, 9.5, 0, 1}, {5.5, 0.5, 0, 1}, {0.5, 5.5, 0, 1}, {-5.5, -5.5, 0, 1}});
+  o.voxel_rgb.resize(5, 3);
+  o.voxel_rgb << 255, 255, 255, 255, 255, 255, 200, 30, 10, 12, 180, 40, 90, 60, 250;
+  const RgbImage img = SnapshotRenderer::render(v, 1.0, o);
+  const TopViewFrame f(-10, 10, -10, 10, 200, 200);
+  EXPECT_TRUE(near(f.at(img, 5.5, 0.5), {200, 30, 10}));
+  EXPECT_TRUE(near(f.at(img, 0.5, 5.5), {12, 180, 40}));
+  EXPECT_TRUE(near(f.at(img, -5.5, -5.5), {90, 60, 250}));
+  EXPECT_TRUE(near(f.at(img, 0.5, -5.5), kBlack));
+  o.voxel_rgb.resize(4, 3);
+  EXPECT_THROW((void)SnapshotRenderer::render(v, 1.0, o), std::invalid_argument);
+}
+
 TEST(SnapshotRenderer, PixelOutsideTheImageThrowsNamingIt) {
   RgbImage img;
   img.width = 4;
@@ -439,6 +457,22 @@ TEST(SnapshotRenderer, CallsFromSeveralThreadsAllSucceed) {
 }
 
 #ifdef IWLOMAP_TEST_PCL_ADAPTER
+TEST(CloudToVoxels, RgbCloudsRenderInTheirOwnColours) {
+  pcl::PointCloud<pcl::PointXYZRGB> cloud;
+  for (const auto& [x, y, r, g, b] : std::vector<std::tuple<float, float, int, int, int>>{
+           {-9.5f, -9.5f, 255, 255, 255}, {9.5f, 9.5f, 255, 255, 255}, {5.5f, 0.5f, 10, 220, 30}}) {
+    pcl::PointXYZRGB p(static_cast<std::uint8_t>(r), static_cast<std::uint8_t>(g), static_cast<std::uint8_t>(b));
+    p.x = x;
+    p.y = y;
+    p.z = 0.0f;
+    cloud.push_back(p);
+  }
+  SnapshotOptions o = flat_top_view(200, 200);
+  o.color_by = ColorBy::kRgb;
+  const RgbImage img = render_cloud(cloud, 1.0, o);
+  EXPECT_TRUE(near(TopViewFrame(-10, 10, -10, 10, 200, 200).at(img, 5.5, 0.5), {10, 220, 30}));
+}
+
 TEST(CloudToVoxels, TakesIntensityAsProbabilityOrTheDefault) {
   pcl::PointCloud<pcl::PointXYZI> with;
   with.push_back(pcl::PointXYZI(0.8f));

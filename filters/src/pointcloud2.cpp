@@ -54,34 +54,47 @@ bool has_field(const pcl::PCLPointCloud2& blob, const std::string& name) {
   return false;
 }
 
-void pointcloud2_to_xyzi(const pcl::PCLPointCloud2& blob, pcl::PointCloud<pcl::PointXYZI>& out,
-                         float missing_intensity) {
-  const auto find = [&](const char* name) -> const pcl::PCLPointField* {
-    for (const auto& f : blob.fields) {
-      if (f.name != name) continue;
-      const std::size_t bytes = value_bytes(f.datatype);
-      if (bytes == 0)
-        throw std::invalid_argument(std::string("iwlomap: field '") + name + "' has unknown datatype " +
-                                    std::to_string(f.datatype));
-      if (static_cast<std::uint64_t>(f.offset) + bytes > blob.point_step)
-        throw std::invalid_argument(std::string("iwlomap: field '") + name + "' (offset " + std::to_string(f.offset) +
-                                    ", " + std::to_string(bytes) + " bytes) lies outside the point of " +
-                                    std::to_string(blob.point_step) + " bytes");
-      return &f;
-    }
-    return nullptr;
-  };
-  const pcl::PCLPointField* fx = find("x");
-  const pcl::PCLPointField* fy = find("y");
-  const pcl::PCLPointField* fz = find("z");
-  const pcl::PCLPointField* fi = find("intensity");
-  if (fx == nullptr || fy == nullptr || fz == nullptr)
-    throw std::invalid_argument("iwlomap: the cloud has no x, y and z fields");
+namespace {
+
+// The field \p name of \p blob, checked to have a known type and to lie within the point; null
+// when there is none.
+const pcl::PCLPointField* checked_field(const pcl::PCLPointCloud2& blob, const char* name) {
+  for (const auto& f : blob.fields) {
+    if (f.name != name) continue;
+    const std::size_t bytes = value_bytes(f.datatype);
+    if (bytes == 0)
+      throw std::invalid_argument(std::string("iwlomap: field '") + name + "' has unknown datatype " +
+                                  std::to_string(f.datatype));
+    if (static_cast<std::uint64_t>(f.offset) + bytes > blob.point_step)
+      throw std::invalid_argument(std::string("iwlomap: field '") + name + "' (offset " + std::to_string(f.offset) +
+                                  ", " + std::to_string(bytes) + " bytes) lies outside the point of " +
+                                  std::to_string(blob.point_step) + " bytes");
+    return &f;
+  }
+  return nullptr;
+}
+
+// width x height, checked against the data's length.
+std::uint64_t point_count(const pcl::PCLPointCloud2& blob) {
   const std::uint64_t n = static_cast<std::uint64_t>(blob.width) * blob.height;
   if (n != 0 && (blob.point_step == 0 || n > blob.data.size() / blob.point_step))
     throw std::invalid_argument("iwlomap: the cloud's data holds " + std::to_string(blob.data.size()) +
                                 " bytes, less than " + std::to_string(n) + " points of " +
                                 std::to_string(blob.point_step) + " bytes");
+  return n;
+}
+
+}  // namespace
+
+void pointcloud2_to_xyzi(const pcl::PCLPointCloud2& blob, pcl::PointCloud<pcl::PointXYZI>& out,
+                         float missing_intensity) {
+  const pcl::PCLPointField* fx = checked_field(blob, "x");
+  const pcl::PCLPointField* fy = checked_field(blob, "y");
+  const pcl::PCLPointField* fz = checked_field(blob, "z");
+  const pcl::PCLPointField* fi = checked_field(blob, "intensity");
+  if (fx == nullptr || fy == nullptr || fz == nullptr)
+    throw std::invalid_argument("iwlomap: the cloud has no x, y and z fields");
+  const std::uint64_t n = point_count(blob);
   out.resize(static_cast<std::size_t>(n));
   out.width = blob.width;
   out.height = blob.height;
@@ -94,6 +107,26 @@ void pointcloud2_to_xyzi(const pcl::PCLPointCloud2& blob, pcl::PointCloud<pcl::P
     q.z = static_cast<float>(read_value(p + fz->offset, fz->datatype));
     q.intensity = fi != nullptr ? static_cast<float>(read_value(p + fi->offset, fi->datatype)) : missing_intensity;
   }
+}
+
+std::optional<ColorMatrix> pointcloud2_colors(const pcl::PCLPointCloud2& blob) {
+  const pcl::PCLPointField* f = checked_field(blob, "rgb");
+  if (f == nullptr) f = checked_field(blob, "rgba");
+  if (f == nullptr) return std::nullopt;
+  if (value_bytes(f->datatype) != 4)
+    throw std::invalid_argument("iwlomap: field '" + f->name + "' has " + std::to_string(value_bytes(f->datatype)) +
+                                " bytes, expected PCL's packed 4-byte colour");
+  const std::uint64_t n = point_count(blob);
+  ColorMatrix colors(static_cast<Eigen::Index>(n), 3);
+  for (std::uint64_t i = 0; i < n; ++i) {
+    std::uint32_t packed = 0;  // 0xAARRGGBB, whether stored as float32 or as an integer
+    std::memcpy(&packed, blob.data.data() + i * blob.point_step + f->offset, sizeof packed);
+    const auto row = static_cast<Eigen::Index>(i);
+    colors(row, 0) = static_cast<std::uint8_t>(packed >> 16);
+    colors(row, 1) = static_cast<std::uint8_t>(packed >> 8);
+    colors(row, 2) = static_cast<std::uint8_t>(packed);
+  }
+  return colors;
 }
 
 }  // namespace iwlomap

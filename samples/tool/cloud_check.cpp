@@ -298,9 +298,10 @@ CloudHeader check_cloud_file(const std::string& path) {
 }
 
 void blob_to_xyzi(const pcl::PCLPointCloud2& blob, float missing_intensity, const std::string& path,
-                  pcl::PointCloud<pcl::PointXYZI>& out) {
+                  pcl::PointCloud<pcl::PointXYZI>& out, std::optional<ColorMatrix>& colors) {
   try {
     pointcloud2_to_xyzi(blob, out, missing_intensity);
+    colors = pointcloud2_colors(blob);
   } catch (const std::invalid_argument& e) {
     const std::string what = e.what();
     fail(path, what.rfind("iwlomap: ", 0) == 0 ? what.substr(9) : what);

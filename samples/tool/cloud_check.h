@@ -7,11 +7,15 @@
 // field is read as zeros by pcl::fromPCLPointCloud2. The tool therefore reads only files whose
 // header is consistent with itself and with the file's size, and converts the fields itself.
 
+#include <iwlomap/voxel_colors.h>
+
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 
 #include <cstdint>
+
+#include <optional>
 #include <string>
 
 namespace iwlomap::tool {
@@ -34,9 +38,10 @@ CloudHeader check_cloud_file(const std::string& path);
 
 /// Copies the x, y, z and (when present) intensity fields of \p blob into \p out, converting from
 /// any type PCL stores (float32/64, signed and unsigned integers of 1 to 8 bytes); a missing
-/// intensity field gives every point \p missing_intensity. Throws std::runtime_error naming
-/// \p path when x, y or z is missing or a field lies outside the point.
+/// intensity field gives every point \p missing_intensity. \p colors gets the points' colours when
+/// the cloud has an rgb or rgba field (pointcloud2_colors()), nullopt otherwise. Throws
+/// std::runtime_error naming \p path when x, y or z is missing or a field lies outside the point.
 void blob_to_xyzi(const pcl::PCLPointCloud2& blob, float missing_intensity, const std::string& path,
-                  pcl::PointCloud<pcl::PointXYZI>& out);
+                  pcl::PointCloud<pcl::PointXYZI>& out, std::optional<ColorMatrix>& colors);
 
 }  // namespace iwlomap::tool

@@ -10,12 +10,26 @@
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
+#include <pcl/register_point_struct.h>
 
 #include <algorithm>
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <stdexcept>
+
+namespace iwlomap::tool {
+/// An occupied voxel with its probability and mean colour, as `iwlomap map` writes it.
+struct EIGEN_ALIGN16 ColoredVoxel {
+  PCL_ADD_POINT4D;
+  PCL_ADD_RGB;
+  float intensity;
+  PCL_MAKE_ALIGNED_OPERATOR_NEW
+};
+}  // namespace iwlomap::tool
+
+POINT_CLOUD_REGISTER_POINT_STRUCT(iwlomap::tool::ColoredVoxel,
+                                  (float, x, x)(float, y, y)(float, z, z)(float, intensity, intensity)(float, rgb, rgb))
 
 namespace iwlomap::tool {
 
@@ -90,13 +104,20 @@ LoadedCloud load_cloud(const std::string& path, float missing_intensity) {
   LoadedCloud out;
   out.cloud.reset(new pcl::PointCloud<pcl::PointXYZI>);
   out.has_intensity = has_field(blob, "intensity");
-  blob_to_xyzi(blob, missing_intensity, path, *out.cloud);
+  blob_to_xyzi(blob, missing_intensity, path, *out.cloud, out.colors);
   out.cloud->sensor_origin_ = origin;
   out.cloud->sensor_orientation_ = orientation;
   return out;
 }
 
-void save_cloud(const std::string& file, const pcl::PointCloud<pcl::PointXYZI>& cloud, const std::string& shown_as) {
+namespace {
+
+// Writes \p cloud as binary .pcd or .ply; \p min_point_bytes per point is the least a complete
+// file holds (PCL's PLY writer does not check its stream: a short file, a full disk, is caught by
+// its size).
+template <typename PointT>
+void save_any(const std::string& file, const pcl::PointCloud<PointT>& cloud, std::size_t min_point_bytes,
+              const std::string& shown_as) {
   const std::string ext = extension(file);
   if (ext != ".pcd" && ext != ".ply")
     throw std::runtime_error("'" + shown_as + "': unsupported output format (use .pcd or .ply)");
@@ -106,11 +127,43 @@ void save_cloud(const std::string& file, const pcl::PointCloud<pcl::PointXYZI>& 
     return;
   }
   const int rc = ext == ".pcd" ? pcl::io::savePCDFileBinary(file, cloud) : pcl::io::savePLYFileBinary(file, cloud);
-  // PCL's PLY writer does not check its stream: a short file (full disk) is caught by its size.
   std::error_code ec;
   const auto size = std::filesystem::file_size(file, ec);
-  if (rc < 0 || ec || size < cloud.size() * 3 * sizeof(float))
+  if (rc < 0 || ec || size < cloud.size() * min_point_bytes)
     throw std::runtime_error("cannot write '" + shown_as + "'" + (ec ? ": " + ec.message() : std::string()));
+}
+
+}  // namespace
+
+void save_cloud(const std::string& file, const pcl::PointCloud<pcl::PointXYZI>& cloud, const std::string& shown_as) {
+  save_any(file, cloud, 3 * sizeof(float), shown_as);
+}
+
+void save_cloud(const std::string& file, const pcl::PointCloud<pcl::PointXYZI>& cloud, const ColorMatrix& colors,
+                const std::string& shown_as) {
+  if (colors.rows() != static_cast<Eigen::Index>(cloud.size()))
+    throw std::logic_error("save_cloud: " + std::to_string(colors.rows()) + " colours for " +
+                           std::to_string(cloud.size()) + " points");
+  pcl::PointCloud<ColoredVoxel> out;
+  out.resize(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    ColoredVoxel& q = out[i];
+    q.x = cloud[i].x;
+    q.y = cloud[i].y;
+    q.z = cloud[i].z;
+    q.intensity = cloud[i].intensity;
+    const auto row = static_cast<Eigen::Index>(i);
+    q.r = colors(row, 0);
+    q.g = colors(row, 1);
+    q.b = colors(row, 2);
+    q.a = 255;
+  }
+  out.width = cloud.width;
+  out.height = cloud.height;
+  out.is_dense = cloud.is_dense;
+  out.sensor_origin_ = cloud.sensor_origin_;
+  out.sensor_orientation_ = cloud.sensor_orientation_;
+  save_any(file, out, 3 * sizeof(float) + 3, shown_as);
 }
 
 }  // namespace iwlomap::tool

@@ -6,6 +6,9 @@
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 
+#include <iwlomap/voxel_colors.h>
+
+#include <optional>
 #include <string>
 
 namespace iwlomap::tool {
@@ -13,6 +16,7 @@ namespace iwlomap::tool {
 struct LoadedCloud {
   pcl::PointCloud<pcl::PointXYZI>::Ptr cloud;
   bool has_intensity = true;  ///< false: the file had no intensity field (filled with a default)
+  std::optional<ColorMatrix> colors;  ///< one row per point when the file has an rgb/rgba field
 };
 
 /// Loads a .pcd or .ply file as PointXYZI, keeping the sensor origin and orientation of a PCD's
@@ -23,5 +27,10 @@ struct LoadedCloud {
 /// Writes a cloud as binary .pcd or .ply by the extension of \p file (an OutputFiles temporary);
 /// throws std::runtime_error naming \p shown_as on failure.
 void save_cloud(const std::string& file, const pcl::PointCloud<pcl::PointXYZI>& cloud, const std::string& shown_as);
+
+/// As save_cloud(), with an `rgb` field (PCL's packed colour; a PLY gets red, green and blue
+/// properties) from \p colors, one row per point of \p cloud.
+void save_cloud(const std::string& file, const pcl::PointCloud<pcl::PointXYZI>& cloud, const ColorMatrix& colors,
+                const std::string& shown_as);
 
 }  // namespace iwlomap::tool

@@ -10,11 +10,13 @@
 
 #include <iwlomap/async_mapper.h>
 #include <iwlomap/filters/cloud_conversions.h>
+#include <iwlomap/voxel_colors.h>
 
 #include <chrono>
 #include <filesystem>
 #include <iostream>
 #include <optional>
+#include <vector>
 
 namespace iwlomap::tool {
 
@@ -25,7 +27,10 @@ const char* kHelp = R"(usage: iwlomap map [options] INPUT... [-o OUT.pcd|OUT.ply
 Integrates the clouds INPUT... (.pcd or .ply, in this order) into one IWLO occupancy map and
 writes the occupied voxels (voxel centres, intensity = occupancy probability). Points are taken
 in the map frame as stored; each file's sensor origin (the PCD VIEWPOINT) is the ray origin.
-A file without an intensity field gives every point the intensity --intensity-max.
+A file without an intensity field gives every point the intensity --intensity-max. When an
+input has colour (an rgb or rgba field; red, green, blue in a .ply), each occupied voxel gets the
+mean colour of the hits that fell in it (counted as the map counts hits), written as an rgb field
+beside the intensity and used by --snapshot; voxels hit only by uncoloured points are black.
 
 output:
   -o, --output FILE         occupied voxels as .pcd or .ply (binary)
@@ -35,6 +40,7 @@ output:
                             in it (sub-voxel surface estimate) instead of its centre; hit
                             statistics are gathered from this run on (every backend; a disk map
                             keeps them in its tiles)
+  --no-colors               ignore the inputs' colours: no rgb field, the snapshot by height
 )";
 
 }  // namespace
@@ -43,7 +49,7 @@ int run_map(const std::vector<std::string>& argv) {
   auto value_opts = map_value_options();
   value_opts.insert({"-o", "--output", "--octomap", "--snapshot"});
   auto flag_opts = map_flag_options();
-  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async", "--mean-positions"});
+  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async", "--mean-positions", "--no-colors"});
   const Args args(argv, value_opts, flag_opts);
   if (args.flag("-h") || args.flag("--help")) {
     std::cout << kHelp << map_outputs_help() << map_options_help() << "  -q, --quiet               no summary, no progress bar\n";
@@ -61,6 +67,8 @@ int run_map(const std::vector<std::string>& argv) {
   const MapSetup setup = map_setup_from(args);
   const bool mean_positions = args.flag("--mean-positions");
   if (mean_positions) setup.map->set_hit_accumulation(true);
+  const bool keep_colors = !args.flag("--no-colors");
+  std::optional<VoxelColorMeans> colors;  // from the first coloured input on
   const bool async = args.flag("--async");
   if (async && !setup.ray_casting) throw UsageError("--async needs ray casting (drop --no-rays)");
   const auto started = std::chrono::steady_clock::now();
@@ -80,15 +88,24 @@ int run_map(const std::vector<std::string>& argv) {
         for (std::size_t k = 0; k < in.cloud->size(); ++k) intensity[static_cast<Eigen::Index>(k)] = (*in.cloud)[k].intensity;
         warning.check(inputs[i], intensity, setup.params);
       }
-      if (background) {
-        Eigen::MatrixXd xyz;
-        Eigen::VectorXd intensity;
+      const Eigen::Vector3d origin = in.cloud->sensor_origin_.head<3>().cast<double>();
+      Eigen::MatrixXd xyz;
+      Eigen::VectorXd intensity;
+      if (background || (in.colors && keep_colors))
         cloud_to_matrices(*in.cloud, nullptr, setup.params.intensity_max, xyz, intensity);
-        background->integrate(in.cloud->sensor_origin_.head<3>().cast<double>(), std::move(xyz), std::move(intensity),
-                              setup.max_range);
-      } else {
-        integrate_cloud(*setup.map, *in.cloud, nullptr, setup.ray_casting, setup.max_range);
+      if (in.colors && keep_colors) {
+        // The hits the map counts, so a voxel's colour is that of the points that made it occupied.
+        if (!colors) colors.emplace(setup.map->get_resolution());
+        if (setup.ray_casting)
+          colors->add_scan(origin, xyz, intensity, *in.colors, setup.map->get_params(), setup.max_range);
+        else
+          colors->add_observations(xyz, intensity, std::vector<bool>(static_cast<std::size_t>(xyz.rows()), true),
+                                   *in.colors, setup.map->get_params());
       }
+      if (background)
+        background->integrate(origin, std::move(xyz), std::move(intensity), setup.max_range);
+      else
+        integrate_cloud(*setup.map, *in.cloud, nullptr, setup.ray_casting, setup.max_range);
       progress.update(i + 1, name);
     }
     if (background) background->sync();
@@ -99,10 +116,19 @@ int run_map(const std::vector<std::string>& argv) {
   // fails the run before an output is written.
   setup.map->flush();
   show_status(!quiet, "writing the outputs");
+  const double threshold = setup.params.occupied_threshold;
+  const Eigen::MatrixXd voxels =
+      mean_positions ? setup.map->get_occupied_mean_positions(threshold) : setup.map->get_occupied_voxels(threshold);
   pcl::PointCloud<pcl::PointXYZI> occupied;
-  occupied_to_cloud(*setup.map, setup.params.occupied_threshold, occupied, mean_positions);
-  if (output) save_cloud(files.temporary(*output), occupied, *output);
-  write_map_outputs(extra, files, *setup.map, setup.params.occupied_threshold);
+  voxels_to_cloud(voxels, occupied);
+  std::size_t coloured = 0;
+  if (colors)
+    for (Eigen::Index i = 0; i < voxels.rows(); ++i) coloured += colors->hits(voxels.row(i).head<3>().transpose()) > 0;
+  if (output && colors)
+    save_cloud(files.temporary(*output), occupied, colors->colors_at(voxels), *output);
+  else if (output)
+    save_cloud(files.temporary(*output), occupied, *output);
+  write_map_outputs(extra, files, *setup.map, threshold, colors ? &*colors : nullptr);
   files.commit();
   show_status(!quiet, "");
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
@@ -111,7 +137,8 @@ int run_map(const std::vector<std::string>& argv) {
               << setup.map->get_num_skipped_points() << " skipped) at " << setup.map->get_resolution() << " m, "
               << setup.map->get_backend_type() << " backend, " << sensor_preset_name(setup.sensor)
               << " preset: " << setup.map->get_num_nodes() << " known voxels, "
-              << occupied.size() << " occupied (p > " << setup.params.occupied_threshold << ") in " << seconds
+              << occupied.size() << " occupied (p > " << threshold << ")"
+              << (colors ? ", " + std::to_string(coloured) + " of them coloured" : std::string()) << " in " << seconds
               << " s\n";
     for (const std::string& written : files.paths()) std::cout << "wrote " << written << "\n";
   }

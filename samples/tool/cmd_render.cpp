@@ -53,8 +53,9 @@ camera (parallel projection framing the whole map unless --perspective):
   --perspective               a 30 degree perspective camera instead of a parallel one
 
 voxels:
-  --color probability|height|fixed   colour by occupancy probability, by height or one colour
-                              (default height)
+  --color probability|height|fixed|rgb   colour by occupancy probability, by height, one
+                              colour, or each voxel's own colour (the rgb field of a .pcd/.ply,
+                              e.g. the mean colours 'iwlomap map' writes; default height)
   --color-range MIN,MAX       the values spread over the colour map (default: probability
                               0.5,1; height: the map's z range)
   --fixed-color COLOR         the colour of --color fixed
@@ -186,8 +187,10 @@ viewer::SnapshotOptions options_from(const Args& args) {
     o.color_by = viewer::ColorBy::kHeight;
   else if (color == "fixed")
     o.color_by = viewer::ColorBy::kFixed;
+  else if (color == "rgb")
+    o.color_by = viewer::ColorBy::kRgb;
   else
-    throw UsageError("--color must be probability, height or fixed, got '" + color + "'");
+    throw UsageError("--color must be probability, height, fixed or rgb, got '" + color + "'");
   if (const auto range = args.value("--color-range")) {
     const auto r = parse_list("--color-range", *range, 2);
     o.color_min = r[0];
@@ -249,12 +252,19 @@ int run_render(const std::vector<std::string>& argv) {
   Eigen::MatrixXd voxels;
   double resolution = 0.0;
   bool raw_points = false;
+  if (options.color_by == viewer::ColorBy::kRgb && stored_map)
+    throw UsageError("--color rgb needs a .pcd/.ply with an rgb field; a stored map keeps no colours");
   if (stored_map) {  // the occupied voxels of a stored map, at its own resolution
     const auto map = open_map(input);
     voxels = map->get_occupied_voxels(map->get_params().occupied_threshold);
     resolution = map->get_resolution();
   } else {
-    voxels = viewer::cloud_to_voxels(*load_cloud(input, 1.0f).cloud);
+    const LoadedCloud cloud = load_cloud(input, 1.0f);
+    voxels = viewer::cloud_to_voxels(*cloud.cloud);
+    if (options.color_by == viewer::ColorBy::kRgb) {
+      if (!cloud.colors) throw std::runtime_error("--color rgb: '" + input + "' has no rgb or rgba field");
+      options.voxel_rgb = *cloud.colors;
+    }
   }
   if (!stored_map) {  // a cloud does not say its voxel size: take the option, or infer it
     const auto inferred = infer_resolution(voxels);

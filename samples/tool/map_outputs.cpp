@@ -43,17 +43,23 @@ MapOutputs map_outputs_from(const Args& args, OutputFiles& files) {
   return out;
 }
 
-void write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMapperBackend& map, double min_probability) {
+void write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMapperBackend& map, double min_probability,
+                       const VoxelColorMeans* colors) {
 #ifdef IWLOMAP_HAVE_OCTOMAP
   if (outputs.octomap) files.write(*outputs.octomap, [&](const std::string& file) { export_octomap(map, file); });
 #endif
 #ifdef IWLOMAP_HAVE_VIEWER
   if (outputs.snapshot) {
+    const Eigen::MatrixXd voxels = map.get_occupied_voxels(min_probability);
     viewer::SnapshotOptions options;
-    options.title = "iwlomap: " + std::to_string(map.get_occupied_voxels(min_probability).rows()) +
-                    " occupied voxels at " + shortest(map.get_resolution()) + " m";
+    options.title = "iwlomap: " + std::to_string(voxels.rows()) + " occupied voxels at " +
+                    shortest(map.get_resolution()) + " m";
+    if (colors != nullptr) {
+      options.color_by = viewer::ColorBy::kRgb;
+      options.voxel_rgb = colors->colors_at(voxels);
+    }
     files.write(*outputs.snapshot, [&](const std::string& file) {
-      viewer::SnapshotRenderer::render_png(map, options, file, min_probability);
+      viewer::SnapshotRenderer::render_png(voxels, map.get_resolution(), options, file);
     });
   }
 #endif
@@ -61,6 +67,7 @@ void write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMap
   (void)files;
   (void)map;
   (void)min_probability;
+  (void)colors;
 }
 
 }  // namespace iwlomap::tool

@@ -7,6 +7,7 @@
 #include "output_files.h"
 
 #include <iwlomap/mapper_backend.h>
+#include <iwlomap/voxel_colors.h>
 
 #include <optional>
 #include <string>
@@ -24,8 +25,10 @@ struct MapOutputs {
 [[nodiscard]] MapOutputs map_outputs_from(const class Args& args, OutputFiles& files);
 
 /// Writes the requested outputs of \p map into their temporaries in \p files (the snapshot shows
-/// voxels with p > \p min_probability).
-void write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMapperBackend& map, double min_probability);
+/// voxels with p > \p min_probability, in their mean colours when \p colors is given, else by
+/// height).
+void write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMapperBackend& map, double min_probability,
+                       const VoxelColorMeans* colors = nullptr);
 
 /// Help lines for --octomap and --snapshot.
 [[nodiscard]] const char* map_outputs_help();

@@ -189,6 +189,42 @@ for f in occupied_mean occupied_mean_disk; do
   sed '1,/^DATA/d' "$WORK/$f.ascii.pcd" | sort >"$WORK/$f.sorted"
 done
 expect mean_positions_disk_same_points cmp -s "$WORK/occupied_mean.sorted" "$WORK/occupied_mean_disk.sorted"
+# Colour: a wall at x = 2.05 m, red (200, 20, 10) below y = 0 and blue (10, 30, 220) above; every
+# occupied voxel carries the mean colour of its hits (the two halves meet on a voxel face at 0.1 m).
+{
+  printf '# .PCD v0.7\nVERSION 0.7\nFIELDS x y z intensity rgb\nSIZE 4 4 4 4 4\nTYPE F F F F U\nCOUNT 1 1 1 1 1\n'
+  printf 'WIDTH 950\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 950\nDATA ascii\n'
+  awk 'BEGIN { for (i = 0; i < 950; i++) { y = (i % 50) * 0.04 - 0.98; z = int(i / 50) * 0.05 - 0.45;
+       printf "2.05 %.3f %.3f 100 %d\n", y, z, (y < 0 ? 200 * 65536 + 20 * 256 + 10 : 10 * 65536 + 30 * 256 + 220) } }'
+} >"$WORK/colour_wall.pcd"
+{
+  printf 'ply\nformat ascii 1.0\nelement vertex 950\nproperty float x\nproperty float y\nproperty float z\n'
+  printf 'property float intensity\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n'
+  awk 'BEGIN { for (i = 0; i < 950; i++) { y = (i % 50) * 0.04 - 0.98; z = int(i / 50) * 0.05 - 0.45;
+       printf "2.05 %.3f %.3f 100 %s\n", y, z, (y < 0 ? "200 20 10" : "10 30 220") } }'
+} >"$WORK/colour_wall.ply"
+check map_colour 0 "$TOOL" map "$WORK/colour_wall.pcd" --resolution 0.1 --sensor lidar -o "$WORK/colour_out.pcd"
+expect map_colour_summary grep -Eq "occupied \(p > 0.7\), [0-9]+ of them coloured" "$WORK/map_colour.out"
+expect map_colour_rgb_field grep -aq "^FIELDS x y z intensity rgb" "$WORK/colour_out.pcd"
+pcl_convert_pcd_ascii_binary "$WORK/colour_out.pcd" "$WORK/colour_out.ascii.pcd" 0 >/dev/null
+expect map_colour_means_by_half awk '/^DATA/ { data = 1; next } data { n++; want = ($2 < 0 ? 13112330 : 663260);
+  if ($5 % 16777216 != want) bad++ } END { exit !(n > 100 && bad == 0) }' "$WORK/colour_out.ascii.pcd"
+check map_colour_ply_in 0 "$TOOL" map "$WORK/colour_wall.ply" --resolution 0.1 --sensor lidar -o "$WORK/colour_from_ply.pcd"
+expect map_colour_ply_same_colours same_voxels "$WORK/colour_out.pcd" "$WORK/colour_from_ply.pcd"
+check map_colour_ply_out 0 "$TOOL" map "$WORK/colour_wall.pcd" --resolution 0.1 --sensor lidar -o "$WORK/colour_out.ply"
+expect map_colour_ply_properties bash -c "head -c 400 '$WORK/colour_out.ply' | grep -aq 'property uchar red'"
+check map_colour_off 0 "$TOOL" map "$WORK/colour_wall.pcd" --resolution 0.1 --sensor lidar --no-colors -o "$WORK/colour_off.pcd"
+expect map_colour_off_no_field grep -aq "^FIELDS x y z intensity$" "$WORK/colour_off.pcd"
+if has_layer viewer && [ -n "${DISPLAY:-}" ]; then
+  check render_rgb 0 "$TOOL" render "$WORK/colour_out.pcd" --color rgb -o "$WORK/colour.png"
+  expect render_rgb_png test -s "$WORK/colour.png"
+  check render_rgb_without_colours 1 "$TOOL" render "$WORK/occupied.pcd" --color rgb -o "$WORK/x.png"
+  expect render_rgb_without_colours_says grep -q "has no rgb or rgba field" "$WORK/render_rgb_without_colours.err"
+  check render_rgb_stored_map 2 "$TOOL" render "$WORK/tiles" --color rgb -o "$WORK/x.png"
+  check map_colour_snapshot 0 "$TOOL" map "$WORK/colour_wall.pcd" --resolution 0.1 --sensor lidar --snapshot "$WORK/colour_snap.png"
+  expect map_colour_snapshot_png test -s "$WORK/colour_snap.png"
+fi
+
 # Any tile size: 10 m at 0.1 m is 12.5 blocks, rounded to 13 (10.4 m), reported by info.
 check map_disk_default_tile 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.1 --sensor lidar --backend disk \
   --tiles "$WORK/tiles_01" -o "$WORK/occupied_disk01.pcd"

@@ -142,6 +142,8 @@ vtkSmartPointer<vtkPolyData> make_polydata(const Eigen::MatrixXd& v, const Scene
       c = to_rgb8(cmap.map(v(i, 3), lo, hi));
     else if (o.color_by == ColorBy::kHeight)
       c = to_rgb8(cmap.map(v(i, 2), lo, hi));
+    else if (o.color_by == ColorBy::kRgb)
+      c = {o.voxel_rgb(i, 0), o.voxel_rgb(i, 1), o.voxel_rgb(i, 2)};
     std::memcpy(rgb + 3 * k, c.data(), 3);
   }
   vtkNew<vtkPoints> points;
@@ -302,7 +304,7 @@ RgbImage render_scene(void* display, const Eigen::MatrixXd& v, double resolution
   // Layout in pixels: the colour bar gets a band on the right, the title a band on top, and the
   // map is framed in what is left, so neither covers voxels.
   const int w = o.width, h = o.height;
-  const bool bar = o.color_bar && o.color_by != ColorBy::kFixed;
+  const bool bar = o.color_bar && o.color_by != ColorBy::kFixed && o.color_by != ColorBy::kRgb;
   const bool title = !o.title.empty();
   const int title_px = std::clamp(static_cast<int>(std::lround(h / 26.0)), 10, 72);
   const int label_px = std::clamp(static_cast<int>(std::lround(h / 48.0)), 9, 40);
@@ -427,6 +429,9 @@ RgbImage SnapshotRenderer::render(const Eigen::MatrixXd& voxels_xyzp, double res
   if (voxels_xyzp.cols() != 4)
     throw std::invalid_argument("SnapshotRenderer: the voxel matrix has " + std::to_string(voxels_xyzp.cols()) +
                                 " columns, expected 4 (x, y, z, p)");
+  if (options.color_by == ColorBy::kRgb && options.voxel_rgb.rows() != voxels_xyzp.rows())
+    throw std::invalid_argument("SnapshotRenderer: ColorBy::kRgb with " + std::to_string(options.voxel_rgb.rows()) +
+                                " colours for " + std::to_string(voxels_xyzp.rows()) + " voxels");
   if (!(resolution > 0.0) || !std::isfinite(resolution))
     throw std::invalid_argument("SnapshotRenderer: resolution " + num(resolution) +
                                 " is not a positive finite number of metres");

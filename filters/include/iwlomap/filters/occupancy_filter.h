@@ -9,6 +9,7 @@
 #include <iwlomap/iwlo.h>
 #include <iwlomap/mapper_backend.h>
 #include <iwlomap/sensor_preset.h>
+#include <iwlomap/voxel_colors.h>
 
 #include <pcl/filters/filter.h>
 #include <pcl/point_cloud.h>
@@ -44,7 +45,8 @@ enum class OutputMode {
 /// Output (OutputMode::kMap, the default; see OutputMode::kInputPoints for the other): one point
 /// per occupied voxel of the whole map (all frames so far), at the voxel centre
 /// (or at the mean of the hits that fell in it, setOutputMeanPositions());
-/// `intensity` (where the type has it) is the occupancy probability in (threshold, 1]. The output
+/// `intensity` (where the type has it) is the occupancy probability in (threshold, 1]; `r`, `g`,
+/// `b` (where the type has colour) are the voxel's mean colour (setColorMeans()). The output
 /// is unorganised (height 1) and dense; header, sensor origin and orientation are the input's.
 /// An empty input integrates nothing and returns the current map. In-place use
 /// (`f.filter(*cloud)` with `cloud` the input) works.
@@ -53,8 +55,9 @@ enum class OutputMode {
 /// PointXYZL; any other point type with x, y and z compiles by including
 /// `iwlomap/filters/impl/occupancy_filter.hpp`, which this header includes itself when
 /// PCL_NO_PRECOMPILE is defined (PCL's convention). Types without an intensity field count every
-/// point as a full-weight hit; in OutputMode::kMap the output points carry no colour or label (a
-/// voxel has none), in OutputMode::kInputPoints every field of a kept point is the input's.
+/// point as a full-weight hit; in OutputMode::kMap the output points of a type with colour carry
+/// their voxel's mean colour and those of other types no label or other field (a voxel has none);
+/// in OutputMode::kInputPoints every field of a kept point is the input's.
 template <typename PointT>
 class OccupancyFilter : public pcl::Filter<PointT> {
   using PointCloud = typename pcl::Filter<PointT>::PointCloud;
@@ -135,6 +138,18 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   void setOutputMeanPositions(bool enabled) { mean_positions_ = enabled; }
   [[nodiscard]] bool getOutputMeanPositions() const { return mean_positions_; }
 
+  /// On (the default for point types with an rgb or rgba field): every voxel keeps the running
+  /// mean colour of the hits that fell in it (VoxelColorMeans, beside the map, any backend), and
+  /// the kMap output carries it in r, g, b (0, 0, 0 for a voxel without coloured hits, e.g. one
+  /// occupied before colours were kept). Off: no colour is kept and the output's r, g, b are 0.
+  /// Turning it off forgets the colours. Throws std::invalid_argument when turned on for a point
+  /// type without colour.
+  void setColorMeans(bool enabled);
+  [[nodiscard]] bool getColorMeans() const { return color_means_; }
+  /// The per-voxel mean colours (at the map's resolution), or null when setColorMeans() is off or
+  /// no map exists yet.
+  [[nodiscard]] std::shared_ptr<const VoxelColorMeans> getVoxelColors() const { return colors_; }
+
  protected:
   using pcl::Filter<PointT>::filter_name_;
   using pcl::Filter<PointT>::input_;
@@ -158,6 +173,8 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   int num_threads_ = 1;
   bool threads_pending_ = false;  // apply num_threads_ to the map at the next filter()
   bool mean_positions_ = false;
+  bool color_means_ = pcl::traits::has_color_v<PointT>;
+  std::shared_ptr<VoxelColorMeans> colors_;  // with color_means_, created with the map
   bool intensity_warned_ = false;  // the PCL_WARN of setSensorPreset() was logged
   OutputMode output_mode_ = OutputMode::kMap;
   bool negative_ = false;

@@ -13,6 +13,9 @@
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 
+#include <iwlomap/voxel_colors.h>
+
+#include <optional>
 #include <string>
 
 namespace iwlomap {
@@ -27,6 +30,14 @@ namespace iwlomap {
 /// the point or has an unknown type, and when the data is shorter than width x height points.
 void pointcloud2_to_xyzi(const pcl::PCLPointCloud2& blob, pcl::PointCloud<pcl::PointXYZI>& out,
                          float missing_intensity = 255.0f);
+
+/// The colours of \p blob's `rgb` field (or else its `rgba` field) in PCL's packed 32-bit form
+/// (0x00RRGGBB or 0xAARRGGBB; the bits are the same whether the field is stored as float32 or as a
+/// 4-byte integer, and PCL's PLY reader makes one from `red`, `green`, `blue` properties), one row
+/// per point in the order of pointcloud2_to_xyzi(); nullopt when the cloud has neither field.
+/// Throws std::invalid_argument when the field is not 4 bytes or lies outside the point, or the
+/// data is shorter than width x height points.
+[[nodiscard]] std::optional<ColorMatrix> pointcloud2_colors(const pcl::PCLPointCloud2& blob);
 
 /// Whether \p blob has a field named \p name.
 [[nodiscard]] bool has_field(const pcl::PCLPointCloud2& blob, const std::string& name);

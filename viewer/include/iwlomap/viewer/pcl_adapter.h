@@ -38,18 +38,33 @@ template <typename PointT>
   return v;
 }
 
-/// SnapshotRenderer::render() of a cloud of voxel centres (see cloud_to_voxels()).
+/// \p options, with voxel_rgb filled from the points' r, g, b when it asks for ColorBy::kRgb, has
+/// no colours of its own and the point type has colour (e.g. OccupancyFilter<PointXYZRGB>'s output).
+template <typename PointT>
+[[nodiscard]] SnapshotOptions with_cloud_colors(const pcl::PointCloud<PointT>& cloud, SnapshotOptions options) {
+  if constexpr (pcl::traits::has_color_v<PointT>) {
+    if (options.color_by == ColorBy::kRgb && options.voxel_rgb.rows() == 0) {
+      options.voxel_rgb.resize(static_cast<Eigen::Index>(cloud.size()), 3);
+      for (std::size_t i = 0; i < cloud.size(); ++i)
+        options.voxel_rgb.row(static_cast<Eigen::Index>(i)) << cloud[i].r, cloud[i].g, cloud[i].b;
+    }
+  }
+  return options;
+}
+
+/// SnapshotRenderer::render() of a cloud of voxel centres (see cloud_to_voxels()); ColorBy::kRgb
+/// takes the points' own colours (with_cloud_colors()).
 template <typename PointT>
 [[nodiscard]] RgbImage render_cloud(const pcl::PointCloud<PointT>& cloud, double resolution,
                                     const SnapshotOptions& options) {
-  return SnapshotRenderer::render(cloud_to_voxels(cloud), resolution, options);
+  return SnapshotRenderer::render(cloud_to_voxels(cloud), resolution, with_cloud_colors(cloud, options));
 }
 
-/// SnapshotRenderer::render_png() of a cloud of voxel centres (see cloud_to_voxels()).
+/// SnapshotRenderer::render_png() of a cloud of voxel centres (see render_cloud()).
 template <typename PointT>
 void render_cloud_png(const pcl::PointCloud<PointT>& cloud, double resolution, const SnapshotOptions& options,
                       const std::string& path) {
-  SnapshotRenderer::render_png(cloud_to_voxels(cloud), resolution, options, path);
+  SnapshotRenderer::render_png(cloud_to_voxels(cloud), resolution, with_cloud_colors(cloud, options), path);
 }
 
 }  // namespace iwlomap::viewer

@@ -17,6 +17,7 @@
 
 #include "iwlomap/mapper_backend.h"
 #include "iwlomap/viewer/color_map.h"
+#include "iwlomap/voxel_colors.h"
 
 #include <Eigen/Core>
 
@@ -55,6 +56,9 @@ enum class ColorBy {
   kProbability,  ///< occupancy probability (column 3) through ColorMap::probability()
   kHeight,       ///< z of the voxel centre through ColorMap::height()
   kFixed,        ///< SnapshotOptions::fixed_color for every voxel (no colour bar)
+  /// Each voxel's own colour from SnapshotOptions::voxel_rgb (e.g. VoxelColorMeans::colors_at()
+  /// of the same rows; no colour bar)
+  kRgb,
 };
 
 /// How a voxel is drawn.
@@ -84,7 +88,9 @@ struct SnapshotOptions {
   /// [min z, max z] of the voxel centres.
   std::optional<double> color_min;
   std::optional<double> color_max;
-  /// A labelled colour bar on the right (ignored for ColorBy::kFixed).
+  /// ColorBy::kRgb: one (r, g, b) row per row of the voxel matrix, in the same order.
+  ColorMatrix voxel_rgb;
+  /// A labelled colour bar on the right (ignored for ColorBy::kFixed and kRgb).
   bool color_bar = true;
 
   VoxelShape shape = VoxelShape::kCubes;
@@ -129,7 +135,8 @@ class SnapshotRenderer {
   /// probability, only used by ColorBy::kProbability), as cubes of edge \p resolution metres.
   /// Rows with a non-finite coordinate (or a non-finite p under ColorBy::kProbability) are skipped.
   /// An empty matrix gives the background (and title) only.
-  /// Throws std::invalid_argument for a matrix without 4 columns, a resolution that is not a
+  /// Throws std::invalid_argument for a matrix without 4 columns, ColorBy::kRgb with a voxel_rgb
+  /// whose row count differs from the matrix's, a resolution that is not a
   /// positive finite number or invalid options; DisplayError when no display can be opened;
   /// std::runtime_error when VTK fails to render.
   [[nodiscard]] static RgbImage render(const Eigen::MatrixXd& voxels_xyzp, double resolution,

@@ -34,8 +34,17 @@ void OccupancyFilter<PointT>::setResolution(double resolution) {
 }
 
 template <typename PointT>
+void OccupancyFilter<PointT>::setColorMeans(bool enabled) {
+  if (enabled && !pcl::traits::has_color_v<PointT>)
+    throw std::invalid_argument("OccupancyFilter::setColorMeans: the point type has no rgb or rgba field");
+  color_means_ = enabled;
+  if (!enabled) colors_.reset();
+}
+
+template <typename PointT>
 void OccupancyFilter<PointT>::setBackend(std::shared_ptr<IMapperBackend> backend) {
   if (!backend) throw std::invalid_argument("OccupancyFilter::setBackend: the backend is null");
+  colors_.reset();  // the colours were those of the previous map
   map_ = std::move(backend);
   resolution_ = map_->get_resolution();
   params_pending_ = false;
@@ -94,6 +103,7 @@ void OccupancyFilter<PointT>::ensureMap() {
     threads_pending_ = false;
   }
   if (mean_positions_ && !map_->get_hit_accumulation()) map_->set_hit_accumulation(true);
+  if (color_means_ && !colors_) colors_ = std::make_shared<VoxelColorMeans>(map_->get_resolution());
 }
 
 template <typename PointT>
@@ -113,11 +123,11 @@ void OccupancyFilter<PointT>::applyFilter(PointCloud& output) {
       intensity_warned_ = true;
     }
   }
-  integrate_cloud(*map_, *input_, indices_.get(), ray_casting_, max_range_);
+  integrate_cloud(*map_, *input_, indices_.get(), ray_casting_, max_range_, colors_.get());
   if (output_mode_ == OutputMode::kInputPoints)
     outputInputPoints(output);
   else
-    occupied_to_cloud(*map_, params_.occupied_threshold, output, mean_positions_);
+    occupied_to_cloud(*map_, params_.occupied_threshold, output, mean_positions_, colors_.get());
 }
 
 template <typename PointT>
