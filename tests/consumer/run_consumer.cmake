@@ -34,6 +34,12 @@ if(MODE STREQUAL "shared")
       message(FATAL_ERROR "libiwlomap_${lib} has no versioned SONAME:\n${last_output}")
     endif()
   endforeach()
+  # The Python module of a shared build finds the prefix's libraries through its relative RPATH.
+  set(package "${WORK}/prefix/lib/python3/dist-packages")
+  if(EXISTS "${package}/iwlomap/__init__.py")
+    run(${CMAKE_COMMAND} -E env "PYTHONPATH=${package}" /usr/bin/python3 -c
+        "import iwlomap; print(iwlomap.ProbabilityUpdater(0.1).get_resolution())")
+  endif()
   set(locate "-DCMAKE_PREFIX_PATH=${WORK}/prefix")
 elseif(MODE STREQUAL "install")
   run(${CMAKE_COMMAND} --install "${BUILD_DIR}" --prefix "${WORK}/prefix")

@@ -1,0 +1,187 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// Sonar: Oculus recordings and the projection of sonar images into IWLO observations.
+
+#include "bindings.h"
+#include "numpy_io.h"
+
+#include <iwlomap/oculus_reader.h>
+#include <iwlomap/sonar_image_projector.h>
+
+#include <pybind11/stl.h>
+
+#include <cstring>
+
+namespace iwlomap::python {
+
+namespace {
+
+// A 2-D image array (range bins x beams; uint8, uint16, float32 or float64; any strides) as a view
+// of its own buffer: the array must outlive the view, so the caller keeps it.
+SonarImageView image_view_of(const py::array& a) {
+  if (a.ndim() != 2) throw py::value_error("image: expected shape (range_bins, beams), got " + shape_text(a));
+  SonarImageView v;
+  const char k = a.dtype().kind();
+  const auto size = a.itemsize();
+  if (k == 'u' && size == 1)
+    v.type = SonarPixelType::kUint8;
+  else if (k == 'u' && size == 2)
+    v.type = SonarPixelType::kUint16;
+  else if (k == 'f' && size == 4)
+    v.type = SonarPixelType::kFloat32;
+  else if (k == 'f' && size == 8)
+    v.type = SonarPixelType::kFloat64;
+  else
+    throw py::value_error("image: expected dtype uint8, uint16, float32 or float64, got " +
+                          py::str(a.dtype()).cast<std::string>());
+  if (a.strides(0) % size != 0 || a.strides(1) % size != 0)
+    throw py::value_error("image: strides are not whole elements; pass a copy (numpy.ascontiguousarray)");
+  v.data = a.data();
+  v.range_bins = static_cast<int>(a.shape(0));
+  v.beams = static_cast<int>(a.shape(1));
+  v.bin_stride = a.strides(0) / size;
+  v.beam_stride = a.strides(1) / size;
+  return v;
+}
+
+py::object observations_to_python(const SonarObservations& o) {
+  py::dict d;
+  d["points"] = to_numpy(o.points);
+  d["intensities"] = to_numpy(o.intensities);
+  d["is_occupied"] = to_numpy(o.is_occupied);
+  d["weights"] = to_numpy(o.weights);
+  d["beams_with_return"] = o.beams_with_return;
+  d["beams_without_return"] = o.beams_without_return;
+  d["free_samples"] = o.free_samples;
+  d["occupied_samples"] = o.occupied_samples;
+  return py::module_::import("types").attr("SimpleNamespace")(**d);
+}
+
+}  // namespace
+
+void bind_sonar(py::module_& m) {
+  py::class_<SonarGeometry>(m, "SonarGeometry", "Where a sonar image's pixels lie (radians, metres).")
+      .def(py::init([](const py::handle& bearings, double range_resolution, double min_range, double max_range,
+                       double vertical_aperture) {
+             SonarGeometry g;
+             const Eigen::VectorXd b = values_from(bearings, "bearings");
+             g.bearings.assign(b.data(), b.data() + b.size());
+             g.range_resolution = range_resolution;
+             g.min_range = min_range;
+             g.max_range = max_range;
+             g.vertical_aperture = vertical_aperture;
+             g.validate(static_cast<int>(g.bearings.size()));
+             return g;
+           }),
+           py::kw_only(), py::arg("bearings"), py::arg("range_resolution"), py::arg("min_range") = 0.0,
+           py::arg("max_range"), py::arg("vertical_aperture") = 0.0,
+           "bearings (beams,) radians, positive toward +y; range_resolution metres per bin; [min_range, max_range] "
+           "metres; vertical_aperture radians.")
+      .def_property_readonly("bearings", [](const SonarGeometry& g) {
+        return to_numpy(Eigen::VectorXd(Eigen::Map<const Eigen::VectorXd>(g.bearings.data(), static_cast<Eigen::Index>(g.bearings.size()))));
+      })
+      .def_readwrite("range_resolution", &SonarGeometry::range_resolution)
+      .def_readwrite("min_range", &SonarGeometry::min_range)
+      .def_readwrite("max_range", &SonarGeometry::max_range)
+      .def_readwrite("vertical_aperture", &SonarGeometry::vertical_aperture);
+
+  py::enum_<SonarNoReturn>(m, "SonarNoReturn")
+      .value("kNothing", SonarNoReturn::kNothing)
+      .value("kFreeToMaxRange", SonarNoReturn::kFreeToMaxRange);
+  const SonarProjectorParams d;
+  py::class_<SonarProjectorParams>(m, "SonarProjectorParams")
+      .def(py::init([](double intensity_threshold, double free_sample_stride, double elevation_sample_spacing,
+                       double occupied_band, SonarNoReturn no_return) {
+             SonarProjectorParams p;
+             p.intensity_threshold = intensity_threshold;
+             p.free_sample_stride = free_sample_stride;
+             p.elevation_sample_spacing = elevation_sample_spacing;
+             p.occupied_band = occupied_band;
+             p.no_return = no_return;
+             p.validate();
+             return p;
+           }),
+           py::kw_only(), py::arg("intensity_threshold") = d.intensity_threshold,
+           py::arg("free_sample_stride") = d.free_sample_stride,
+           py::arg("elevation_sample_spacing") = d.elevation_sample_spacing,
+           py::arg("occupied_band") = d.occupied_band, py::arg("no_return") = d.no_return)
+      .def_readwrite("intensity_threshold", &SonarProjectorParams::intensity_threshold)
+      .def_readwrite("free_sample_stride", &SonarProjectorParams::free_sample_stride)
+      .def_readwrite("elevation_sample_spacing", &SonarProjectorParams::elevation_sample_spacing)
+      .def_readwrite("occupied_band", &SonarProjectorParams::occupied_band)
+      .def_readwrite("no_return", &SonarProjectorParams::no_return);
+
+  py::class_<SonarImageProjector>(m, "SonarImageProjector",
+                                  "Turns a sonar image (range bins x beams) at a pose into IWLO observations.")
+      .def(py::init<double, const SonarProjectorParams&>(), py::arg("resolution"),
+           py::arg("params") = SonarProjectorParams{})
+      .def("resolution", &SonarImageProjector::resolution)
+      .def("params", &SonarImageProjector::params)
+      .def(
+          "project",
+          [](const SonarImageProjector& p, const py::handle& image, const SonarGeometry& geometry,
+             const py::handle& pose) {
+            const py::array a = as_array(image, "image");
+            const SonarImageView view = image_view_of(a);
+            const Eigen::Isometry3d T = pose_from(pose, "sonar_pose");
+            SonarObservations o;
+            {
+              py::gil_scoped_release release;
+              o = p.project(view, geometry, T);
+            }
+            return observations_to_python(o);
+          },
+          py::arg("image"), py::arg("geometry"), py::arg("sonar_pose"),
+          "The observations of image (range_bins, beams) seen from sonar_pose (4, 4), sonar to map frame; a "
+          "namespace with points (N, 3), intensities, is_occupied, weights and counts.")
+      .def(
+          "integrate",
+          [](const SonarImageProjector& p, IMapperBackend& map, const py::handle& image, const SonarGeometry& geometry,
+             const py::handle& pose) {
+            const py::array a = as_array(image, "image");
+            const SonarImageView view = image_view_of(a);
+            const Eigen::Isometry3d T = pose_from(pose, "sonar_pose");
+            const SonarObservations o = unlocked(map, [&] { return p.integrate(map, view, geometry, T); });
+            return observations_to_python(o);
+          },
+          py::arg("map"), py::arg("image"), py::arg("geometry"), py::arg("sonar_pose"),
+          "project() and then map.batch_update_iwlo() with the weights.");
+
+  py::class_<OculusPing>(m, "OculusPing", "One Oculus SimplePingResult message.")
+      .def_readonly("file_offset", &OculusPing::file_offset)
+      .def_readonly("ping_id", &OculusPing::ping_id)
+      .def_readonly("master_mode", &OculusPing::master_mode)
+      .def_readonly("flags", &OculusPing::flags)
+      .def_readonly("range", &OculusPing::range, "metres")
+      .def_readonly("gain_percent", &OculusPing::gain_percent)
+      .def_readonly("speed_of_sound", &OculusPing::speed_of_sound, "m/s")
+      .def_readonly("frequency", &OculusPing::frequency, "Hz")
+      .def_readonly("range_resolution", &OculusPing::range_resolution, "metres per range bin")
+      .def_readonly("range_bins", &OculusPing::range_bins)
+      .def_readonly("beams", &OculusPing::beams)
+      .def_property_readonly("bearings",
+                             [](const OculusPing& p) {
+                               return to_numpy(Eigen::VectorXd(Eigen::Map<const Eigen::VectorXd>(
+                                   p.bearings.data(), static_cast<Eigen::Index>(p.bearings.size()))));
+                             },
+                             "radians, one per beam")
+      .def_property_readonly(
+          "image",
+          [](const OculusPing& p) {
+            py::array_t<std::uint8_t> out({static_cast<py::ssize_t>(p.range_bins), static_cast<py::ssize_t>(p.beams)});
+            if (!p.image.empty()) std::memcpy(out.mutable_data(), p.image.data(), p.image.size());
+            return out;
+          },
+          "(range_bins, beams) uint8")
+      .def("intensity", &OculusPing::intensity, py::arg("bin"), py::arg("beam"))
+      .def("geometry", &OculusPing::geometry, py::arg("vertical_aperture"), py::arg("min_range") = 0.0);
+  m.def(
+      "read_oculus_pings",
+      [](const py::handle& path) {
+        const std::string file = path_from(path);
+        py::gil_scoped_release release;
+        return with_file_errors(file, [&] { return read_oculus_pings(file); });
+      },
+      py::arg("path"), "Every ping of an Oculus recording; OculusFormatError (an OSError) names the problem.");
+}
+
+}  // namespace iwlomap::python

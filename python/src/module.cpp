@@ -1,0 +1,94 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// The iwlomap._iwlomap extension module: the C++ API with the same names, numpy in and out.
+//
+// Exceptions: std::invalid_argument, std::out_of_range, std::length_error and std::domain_error
+// become ValueError (a bad argument, named with its value); StorageError and OculusFormatError
+// become iwlomap.StorageError / iwlomap.OculusFormatError, subclasses of OSError carrying the
+// path in `filename`; MemoryLimitError becomes iwlomap.MemoryLimitError (a MemoryError with
+// needed, in_use and limit); every other exception becomes RuntimeError with its message.
+
+#include "bindings.h"
+
+#include <iwlomap/map_memory.h>
+#include <iwlomap/oculus_reader.h>
+#include <iwlomap/outofcore_tile_mapper.h>
+#include <iwlomap/version.h>
+
+#include <pybind11/pybind11.h>
+
+#include <stdexcept>
+
+namespace py = pybind11;
+
+namespace {
+
+// Raises \p type (an OSError subclass) with errno None, the message and the path as filename.
+void raise_os_error(const py::object& type, const std::string& message, const std::string& path) {
+  const py::object error = type(py::none(), message, path);
+  PyErr_SetObject(type.ptr(), error.ptr());
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_iwlomap, m) {
+  m.doc() = "iwlomap: intensity-weighted log-odds occupancy maps (C++ library bindings)";
+  m.attr("__version__") = iwlomap::version();
+
+  // Exception classes, created once and kept alive by the module.
+  static py::object storage_error = py::reinterpret_borrow<py::object>(
+      py::handle(PyErr_NewExceptionWithDoc("iwlomap.StorageError",
+                                           "A map directory or tile file could not be used (OSError; filename: the path).",
+                                           PyExc_OSError, nullptr)));
+  static py::object oculus_error = py::reinterpret_borrow<py::object>(py::handle(PyErr_NewExceptionWithDoc(
+      "iwlomap.OculusFormatError", "An Oculus recording is malformed (OSError; filename: the file).", PyExc_OSError,
+      nullptr)));
+  static py::object memory_error = py::reinterpret_borrow<py::object>(py::handle(PyErr_NewExceptionWithDoc(
+      "iwlomap.MemoryLimitError", "The map memory limit would be passed (MemoryError; needed, in_use, limit in bytes).",
+      PyExc_MemoryError, nullptr)));
+  m.attr("StorageError") = storage_error;
+  m.attr("OculusFormatError") = oculus_error;
+  m.attr("MemoryLimitError") = memory_error;
+
+  py::register_exception_translator([](std::exception_ptr p) {
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const iwlomap::StorageError& e) {
+      raise_os_error(storage_error, e.what(), e.path());
+    } catch (const iwlomap::OculusFormatError& e) {
+      raise_os_error(oculus_error, e.what(), e.source());
+    } catch (const iwlomap::MemoryLimitError& e) {
+      const py::object error = memory_error(e.what());
+      error.attr("needed") = e.needed();
+      error.attr("in_use") = e.in_use();
+      error.attr("limit") = e.limit();
+      PyErr_SetObject(memory_error.ptr(), error.ptr());
+    } catch (const std::invalid_argument& e) {
+      PyErr_SetString(PyExc_ValueError, e.what());
+    } catch (const std::out_of_range& e) {
+      PyErr_SetString(PyExc_ValueError, e.what());
+    } catch (const std::length_error& e) {
+      PyErr_SetString(PyExc_ValueError, e.what());
+    } catch (const std::domain_error& e) {
+      PyErr_SetString(PyExc_ValueError, e.what());
+    } catch (const iwlomap::python::FileError& e) {
+      raise_os_error(py::reinterpret_borrow<py::object>(PyExc_OSError), e.what(), e.path);
+    }
+  });
+
+  iwlomap::python::bind_core(m);
+  iwlomap::python::bind_sonar(m);
+  iwlomap::python::bind_grids(m);
+  iwlomap::python::bind_async(m);
+#ifdef IWLOMAP_PYTHON_OCTOMAP
+  iwlomap::python::bind_octomap(m);
+  m.attr("HAS_OCTOMAP") = true;
+#else
+  m.attr("HAS_OCTOMAP") = false;
+#endif
+#ifdef IWLOMAP_PYTHON_VIEWER
+  iwlomap::python::bind_viewer(m);
+  m.attr("HAS_VIEWER") = true;
+#else
+  m.attr("HAS_VIEWER") = false;
+#endif
+}

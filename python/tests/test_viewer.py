@@ -1,0 +1,40 @@
+# SPDX-License-Identifier: BSD-3-Clause
+"""The snapshot renderer from Python (needs an X display: the test command runs under xvfb-run)."""
+
+import os
+
+import numpy as np
+import pytest
+
+import iwlomap
+
+pytestmark = pytest.mark.skipif(not iwlomap.HAS_VIEWER or not os.environ.get("DISPLAY"),
+                                reason="no viewer layer or no X display")
+
+
+def test_render_returns_an_image_and_writes_a_png(tmp_path):
+    v = iwlomap.viewer
+    o = v.SnapshotOptions()
+    o.width, o.height = 200, 160
+    o.camera = v.CameraPreset.kTop
+    o.color_by = v.ColorBy.kRgb
+    o.color_bar = False
+    o.lighting = False
+    o.background = (0.0, 0.0, 0.0)
+    voxels = np.array([[-9.5, -9.5, 0, 1], [9.5, 9.5, 0, 1], [5.5, 0.5, 0, 1]], dtype=np.float64)
+    o.voxel_rgb = np.array([[255, 255, 255], [255, 255, 255], [10, 200, 30]], dtype=np.uint8)
+    image = v.render(voxels, 1.0, o)
+    assert image.shape == (160, 200, 3) and image.dtype == np.uint8
+    # The green voxel is drawn in its colour (x = 5.5 m -> column 100 + 5.5 * 7.2).
+    assert np.abs(image[80 - 4, 100 + 39].astype(int) - [10, 200, 30]).max() <= 3
+    v.write_png(image, tmp_path / "a.png")
+    assert (tmp_path / "a.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    m = iwlomap.ProbabilityUpdater(1.0)
+    m.batch_update_iwlo(voxels[:, :3], np.full(3, 255.0), np.ones(3, bool))
+    o.color_by = v.ColorBy.kHeight
+    assert v.render_map(m, o, 0.5).shape == (160, 200, 3)
+    with pytest.raises(ValueError, match="4\\)"):
+        v.render(voxels[:, :3], 1.0, o)
+    o.width = 8
+    with pytest.raises(ValueError, match="width"):
+        v.render(voxels, 1.0, o)
