@@ -79,6 +79,7 @@ PYBIND11_MODULE(_iwlomap, m) {
   iwlomap::python::bind_sonar(m);
   iwlomap::python::bind_grids(m);
   iwlomap::python::bind_async(m);
+  iwlomap::python::bind_bench(m);
 #ifdef IWLOMAP_PYTHON_OCTOMAP
   iwlomap::python::bind_octomap(m);
   m.attr("HAS_OCTOMAP") = true;

@@ -31,10 +31,8 @@ def scan():
 
 
 def voxel_table(m):
-    """Every known voxel as a sorted structured array (key, log-odds, count): equal tables mean
-    maps equal bit for bit."""
+    """Every known voxel as rows (key x, y, z, log-odds, count) sorted by key, float64 (exact for
+    int32 keys and counts): equal tables mean maps equal bit for bit."""
     keys, log_odds, counts = m.get_voxels()
-    t = np.empty(len(counts), dtype=[("x", "i4"), ("y", "i4"), ("z", "i4"), ("l", "f8"), ("n", "u4")])
-    t["x"], t["y"], t["z"] = keys[:, 0], keys[:, 1], keys[:, 2]
-    t["l"], t["n"] = log_odds, counts
-    return np.sort(t, order=["x", "y", "z"])
+    table = np.column_stack([keys.astype(np.float64), log_odds, counts.astype(np.float64)])
+    return table[np.lexsort((keys[:, 2], keys[:, 1], keys[:, 0]))]
