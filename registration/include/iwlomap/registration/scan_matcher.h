@@ -1,0 +1,145 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#pragma once
+
+/// \file
+/// Scan-to-map registration: where does a scan (points in the sensor frame) fit the map, near an
+/// initial pose? Two stages:
+/// - coarse: CorrelativeScanMatcher3D (core), exact branch and bound over the map's max grids in a
+///   search window (x, y, z, yaw), to within a voxel and a yaw step;
+/// - fine: point-to-plane ICP against the map's occupied voxels (their centres, or their mean hit
+///   positions when the map accumulates hits), 6 degrees of freedom, nearest neighbours from a
+///   FLANN k-d tree, a Huber kernel on the residuals.
+/// The result says whether it converged and why not: a scan that does not overlap the map, an
+/// empty map, too few correspondences, or a scene that leaves directions unconstrained (a single
+/// plane: the covariance's unobservable directions are reported) is never a silent wrong pose.
+///
+/// FLANN is used directly (Debian's libflann-dev, header-only k-d tree) rather than through PCL's
+/// KdTreeFLANN: the layer then needs no PCL, so a core or Python user can register scans.
+
+#include <iwlomap/correlative_scan_matcher.h>
+#include <iwlomap/mapper_backend.h>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <cstddef>
+#include <memory>
+#include <string>
+
+namespace iwlomap::registration {
+
+/// Point-to-plane ICP settings. Distances in metres, angles in radians.
+struct IcpOptions {
+  int max_iterations = 30;                  ///< Gauss-Newton steps at most (>= 1)
+  double max_correspondence_distance = 0.5; ///< a scan point farther than this from every map point is unpaired
+  double huber_delta = 0.05;                ///< residuals beyond this are down-weighted (Huber)
+  double translation_tolerance = 1e-4;      ///< stop when a step moves less than this ...
+  double rotation_tolerance = 1e-5;         ///< ... and turns less than this
+  double min_inlier_fraction = 0.3;         ///< converged needs at least this fraction of the scan paired
+  /// A direction of the 6-D pose is unobservable when its eigenvalue of the normalised Hessian is
+  /// below this fraction of the largest one (a plane leaves three such directions).
+  double degeneracy_ratio = 1e-3;
+  /// Throws std::invalid_argument naming the first bad value.
+  void validate() const;
+};
+
+/// Both stages' settings.
+struct ScanMatcherOptions {
+  bool coarse = true;            ///< run the branch-and-bound stage
+  bool fine = true;              ///< run ICP (from the coarse pose, or the initial one)
+  SearchWindow3D window;         ///< the coarse search window
+  double min_coarse_score = 0.3; ///< the coarse pose must score at least this (mean value / 255)
+  /// The coarse stage scores at most this many of the reduced scan's points (every k-th): its
+  /// time is proportional to the count, and a voxel-level pose needs far fewer points than ICP.
+  int coarse_points = 1500;
+  /// Max-grid levels of the coarse stage; 0: as many as the window needs (the widest level covers
+  /// the window's x extent), which keeps the grids small.
+  int coarse_levels = 0;
+  /// Points farther than this from the sensor are ignored (metres; <= 0: none). Bounds the coarse
+  /// stage's grid, which covers the scan at every pose of the window.
+  double max_range = 40.0;
+  /// The scan is reduced to one point (the mean) per voxel of this edge before matching (metres;
+  /// <= 0: the map's resolution).
+  double scan_voxel = 0.0;
+  /// ICP target: the occupied voxels' mean hit positions (when the map accumulates hits) instead
+  /// of their centres.
+  bool mean_hit_positions = true;
+  /// ICP target: voxels with probability above this (< 0: the map's occupied threshold).
+  double min_probability = -1.0;
+  IcpOptions icp;
+  void validate() const;
+};
+
+/// The outcome of one registration.
+struct ScanMatchResult {
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();  ///< sensor to map; the initial pose when not converged
+  double score = 0.0;          ///< fraction of the (reduced) scan paired within max_correspondence_distance
+  double fitness_rmse = 0.0;   ///< RMS point-to-plane distance of the pairs, metres
+  int iterations = 0;          ///< ICP steps taken
+  bool converged = false;
+  std::string reason;          ///< why not converged (empty when converged)
+  double coarse_score = 0.0;   ///< the coarse stage's score (0 when it did not run)
+  std::size_t scan_points = 0; ///< points matched after range limit and voxel reduction
+  std::size_t pairs = 0;       ///< correspondences at the final pose
+  /// Covariance of the pose correction (tx, ty, tz in metres, then rotations about x, y, z in
+  /// radians, in the map frame): sigma^2 H^-1 from the ICP Hessian; infinite along unobservable
+  /// directions.
+  Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Identity();
+  /// Unit 6-D directions (columns, same order as the covariance) the scene does not constrain.
+  Eigen::Matrix<double, 6, Eigen::Dynamic> unobservable;
+};
+
+/// The ICP target: points of the map's surface with normals and a k-d tree. Immutable; built once
+/// per map state and reusable for many scans (match() may run concurrently).
+class MapSurface {
+ public:
+  /// From \p points (N x 3, metres, map frame); normals from the 8 nearest neighbours (PCA).
+  /// Throws std::invalid_argument for fewer than 8 finite points.
+  explicit MapSurface(const Eigen::MatrixXd& points);
+  /// From the occupied voxels of \p map (probability > \p min_probability; < 0: the map's
+  /// threshold), at their mean hit positions when \p mean_hit_positions and the map accumulates hits.
+  [[nodiscard]] static MapSurface from_map(IMapperBackend& map, double min_probability = -1.0,
+                                           bool mean_hit_positions = true);
+  ~MapSurface();
+  MapSurface(MapSurface&&) noexcept;
+  MapSurface& operator=(MapSurface&&) noexcept;
+
+  [[nodiscard]] std::size_t size() const noexcept;
+  [[nodiscard]] const Eigen::MatrixXd& points() const noexcept;   ///< N x 3
+  [[nodiscard]] const Eigen::MatrixXd& normals() const noexcept;  ///< N x 3, unit
+
+  /// Point-to-plane ICP of \p scan_sensor (N x 3, sensor frame) from \p initial (sensor to map).
+  /// Throws std::invalid_argument for an empty scan or a non-finite initial pose.
+  [[nodiscard]] ScanMatchResult align(const Eigen::MatrixXd& scan_sensor, const Eigen::Isometry3d& initial,
+                                      const IcpOptions& options = {}) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// Both stages against one map state.
+class ScanMatcher {
+ public:
+  /// Reads \p map's occupied voxels for ICP now; the coarse stage reads \p map at each match(), so
+  /// the map must outlive the matcher and not change while it matches (re-create after updates).
+  explicit ScanMatcher(IMapperBackend& map, ScanMatcherOptions options = {});
+
+  /// Registers \p scan_sensor (N x 3, metres, sensor frame; non-finite rows skipped) near
+  /// \p initial (sensor to map). Throws std::invalid_argument for a scan without a finite point
+  /// within max_range, a non-finite or non-rigid initial pose.
+  [[nodiscard]] ScanMatchResult match(const Eigen::MatrixXd& scan_sensor, const Eigen::Isometry3d& initial) const;
+
+  [[nodiscard]] const ScanMatcherOptions& options() const noexcept { return options_; }
+
+ private:
+  IMapperBackend& map_;
+  ScanMatcherOptions options_;
+  std::shared_ptr<const MapSurface> surface_;  // null when the map has too few occupied voxels
+};
+
+/// The scan reduced to one point per voxel of edge \p voxel (the mean of its points), points
+/// farther than \p max_range (> 0) from the origin and non-finite rows dropped.
+[[nodiscard]] Eigen::MatrixXd reduce_scan(const Eigen::MatrixXd& scan_sensor, double voxel, double max_range);
+
+}  // namespace iwlomap::registration

@@ -1,0 +1,385 @@
+// SPDX-License-Identifier: BSD-3-Clause
+#include "iwlomap/registration/scan_matcher.h"
+
+#include <Eigen/Eigenvalues>
+#include <flann/flann.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+namespace iwlomap::registration {
+
+namespace {
+
+using Vector6d = Eigen::Matrix<double, 6, 1>;
+using Matrix6d = Eigen::Matrix<double, 6, 6>;
+
+constexpr int kNormalNeighbours = 8;
+// The variance given to a direction the scene does not constrain (m^2 or rad^2): large enough that
+// a caller weighing the result ignores it there, finite so the matrix stays usable.
+constexpr double kUnobservableVariance = 1e6;
+
+std::string num(double v) { return std::to_string(v); }
+
+void check_pose(const Eigen::Isometry3d& pose) {
+  if (!pose.matrix().allFinite()) throw std::invalid_argument("iwlomap: registration: the initial pose is not finite");
+  const Eigen::Matrix3d r = pose.linear();
+  if (!(r.transpose() * r).isApprox(Eigen::Matrix3d::Identity(), 1e-6) || r.determinant() < 0.0)
+    throw std::invalid_argument("iwlomap: registration: the initial pose's rotation is not a rotation");
+}
+
+// Row-major copy of the finite rows of an N x 3 matrix.
+std::vector<double> finite_rows(const Eigen::MatrixXd& m) {
+  std::vector<double> out;
+  out.reserve(static_cast<std::size_t>(m.rows()) * 3);
+  for (Eigen::Index i = 0; i < m.rows(); ++i)
+    if (m.row(i).allFinite())
+      for (int c = 0; c < 3; ++c) out.push_back(m(i, c));
+  return out;
+}
+
+Eigen::Isometry3d apply_step(const Vector6d& step, const Eigen::Isometry3d& pose) {
+  const Eigen::Vector3d w = step.tail<3>();
+  const double angle = w.norm();
+  Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();
+  if (angle > 0.0) delta.linear() = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
+  delta.translation() = step.head<3>();
+  Eigen::Isometry3d out = delta * pose;
+  out.linear() = Eigen::Quaterniond(out.linear()).normalized().toRotationMatrix();
+  return out;
+}
+
+}  // namespace
+
+void IcpOptions::validate() const {
+  const auto positive = [](const char* name, double v) {
+    if (!(std::isfinite(v) && v > 0.0))
+      throw std::invalid_argument(std::string("iwlomap: IcpOptions: ") + name + " = " + num(v) + " must be finite and > 0");
+  };
+  if (max_iterations < 1) throw std::invalid_argument("iwlomap: IcpOptions: max_iterations must be >= 1");
+  positive("max_correspondence_distance", max_correspondence_distance);
+  positive("huber_delta", huber_delta);
+  positive("translation_tolerance", translation_tolerance);
+  positive("rotation_tolerance", rotation_tolerance);
+  positive("degeneracy_ratio", degeneracy_ratio);
+  if (!(min_inlier_fraction >= 0.0 && min_inlier_fraction <= 1.0))
+    throw std::invalid_argument("iwlomap: IcpOptions: min_inlier_fraction = " + num(min_inlier_fraction) +
+                                " must be in [0, 1]");
+}
+
+void ScanMatcherOptions::validate() const {
+  if (!coarse && !fine) throw std::invalid_argument("iwlomap: ScanMatcherOptions: both stages are off");
+  window.validate();
+  if (!(min_coarse_score >= 0.0 && min_coarse_score <= 1.0))
+    throw std::invalid_argument("iwlomap: ScanMatcherOptions: min_coarse_score = " + num(min_coarse_score) +
+                                " must be in [0, 1]");
+  if (coarse_points < 1) throw std::invalid_argument("iwlomap: ScanMatcherOptions: coarse_points must be >= 1");
+  if (coarse_levels < 0 || coarse_levels > PrecomputationStack3D::kMaxLevels)
+    throw std::invalid_argument("iwlomap: ScanMatcherOptions: coarse_levels = " + std::to_string(coarse_levels) +
+                                " must be in [0, 16] (0: as the window needs)");
+  if (std::isnan(max_range) || std::isnan(scan_voxel) || std::isnan(min_probability))
+    throw std::invalid_argument("iwlomap: ScanMatcherOptions: max_range, scan_voxel and min_probability must not be NaN");
+  icp.validate();
+}
+
+Eigen::MatrixXd reduce_scan(const Eigen::MatrixXd& scan_sensor, double voxel, double max_range) {
+  if (scan_sensor.cols() != 3 && scan_sensor.rows() > 0)
+    throw std::invalid_argument("iwlomap: registration: the scan has " + std::to_string(scan_sensor.cols()) +
+                                " columns, expected 3");
+  struct Sum {
+    Eigen::Vector3d p = Eigen::Vector3d::Zero();
+    int n = 0;
+  };
+  std::unordered_map<std::uint64_t, std::size_t> slot;
+  std::vector<Sum> sums;
+  for (Eigen::Index i = 0; i < scan_sensor.rows(); ++i) {
+    const Eigen::Vector3d p = scan_sensor.row(i).transpose();
+    if (!p.allFinite() || (max_range > 0.0 && p.norm() > max_range)) continue;
+    std::uint64_t key = static_cast<std::uint64_t>(i);
+    if (voxel > 0.0) {
+      const Eigen::Vector3d k = (p / voxel).array().floor();
+      if ((k.array().abs() > 1e6).any()) continue;  // beyond any sensible range at this voxel
+      key = (static_cast<std::uint64_t>(static_cast<std::int64_t>(k.x()) + (1 << 20)) << 42) |
+            (static_cast<std::uint64_t>(static_cast<std::int64_t>(k.y()) + (1 << 20)) << 21) |
+            static_cast<std::uint64_t>(static_cast<std::int64_t>(k.z()) + (1 << 20));
+    }
+    const auto [it, fresh] = slot.emplace(key, sums.size());
+    if (fresh) sums.emplace_back();
+    sums[it->second].p += p;
+    ++sums[it->second].n;
+  }
+  Eigen::MatrixXd out(static_cast<Eigen::Index>(sums.size()), 3);
+  for (std::size_t i = 0; i < sums.size(); ++i) out.row(static_cast<Eigen::Index>(i)) = sums[i].p.transpose() / sums[i].n;
+  return out;
+}
+
+// ---- MapSurface -------------------------------------------------------------------------------
+
+struct MapSurface::Impl {
+  std::vector<double> data;  // row-major points, owned: the index points into it
+  Eigen::MatrixXd points;
+  Eigen::MatrixXd normals;
+  std::unique_ptr<flann::Index<flann::L2_Simple<double>>> index;
+
+  // Nearest map point of each row of \p query (row-major, n x 3): index and squared distance.
+  void nearest(std::vector<double>& query, std::size_t n, std::vector<int>& idx, std::vector<double>& dist2,
+               int k = 1) const {
+    idx.assign(n * static_cast<std::size_t>(k), -1);
+    dist2.assign(n * static_cast<std::size_t>(k), std::numeric_limits<double>::infinity());
+    if (n == 0) return;
+    flann::Matrix<double> q(query.data(), n, 3);
+    flann::Matrix<int> i(idx.data(), n, static_cast<std::size_t>(k));
+    flann::Matrix<double> d(dist2.data(), n, static_cast<std::size_t>(k));
+    flann::SearchParams params;
+    params.cores = 1;
+    index->knnSearch(q, i, d, static_cast<std::size_t>(k), params);
+  }
+};
+
+MapSurface::MapSurface(const Eigen::MatrixXd& points) : impl_(std::make_unique<Impl>()) {
+  if (points.cols() != 3 && points.rows() > 0)
+    throw std::invalid_argument("iwlomap: MapSurface: the points have " + std::to_string(points.cols()) + " columns");
+  Impl& s = *impl_;
+  s.data = finite_rows(points);
+  const std::size_t n = s.data.size() / 3;
+  if (n < static_cast<std::size_t>(kNormalNeighbours))
+    throw std::invalid_argument("iwlomap: MapSurface: " + std::to_string(n) + " finite points, at least " +
+                                std::to_string(kNormalNeighbours) + " needed for normals");
+  s.points = Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>>(s.data.data(),
+                                                                                        static_cast<Eigen::Index>(n), 3);
+  s.index = std::make_unique<flann::Index<flann::L2_Simple<double>>>(flann::Matrix<double>(s.data.data(), n, 3),
+                                                                     flann::KDTreeSingleIndexParams(10));
+  s.index->buildIndex();
+  // Normals: the direction of least spread of each point's neighbourhood.
+  std::vector<double> query = s.data;
+  std::vector<int> idx;
+  std::vector<double> dist2;
+  s.nearest(query, n, idx, dist2, kNormalNeighbours);
+  s.normals.resize(static_cast<Eigen::Index>(n), 3);
+  for (std::size_t i = 0; i < n; ++i) {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (int k = 0; k < kNormalNeighbours; ++k) mean += s.points.row(idx[i * kNormalNeighbours + static_cast<std::size_t>(k)]).transpose();
+    mean /= kNormalNeighbours;
+    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+    for (int k = 0; k < kNormalNeighbours; ++k) {
+      const Eigen::Vector3d d = s.points.row(idx[i * kNormalNeighbours + static_cast<std::size_t>(k)]).transpose() - mean;
+      cov += d * d.transpose();
+    }
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
+    s.normals.row(static_cast<Eigen::Index>(i)) = eig.eigenvectors().col(0).transpose();
+  }
+}
+
+MapSurface MapSurface::from_map(IMapperBackend& map, double min_probability, bool mean_hit_positions) {
+  const double threshold = min_probability < 0.0 ? map.get_params().occupied_threshold : min_probability;
+  const Eigen::MatrixXd v = mean_hit_positions && map.get_hit_accumulation() ? map.get_occupied_mean_positions(threshold)
+                                                                             : map.get_occupied_voxels(threshold);
+  return MapSurface(Eigen::MatrixXd(v.leftCols<3>()));
+}
+
+MapSurface::~MapSurface() = default;
+MapSurface::MapSurface(MapSurface&&) noexcept = default;
+MapSurface& MapSurface::operator=(MapSurface&&) noexcept = default;
+
+std::size_t MapSurface::size() const noexcept { return static_cast<std::size_t>(impl_->points.rows()); }
+const Eigen::MatrixXd& MapSurface::points() const noexcept { return impl_->points; }
+const Eigen::MatrixXd& MapSurface::normals() const noexcept { return impl_->normals; }
+
+ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eigen::Isometry3d& initial,
+                                  const IcpOptions& options) const {
+  options.validate();
+  check_pose(initial);
+  const std::vector<double> scan = finite_rows(scan_sensor);
+  const std::size_t n = scan.size() / 3;
+  if (n == 0) throw std::invalid_argument("iwlomap: registration: the scan has no finite point");
+  const Impl& s = *impl_;
+  const double max_d2 = options.max_correspondence_distance * options.max_correspondence_distance;
+
+  std::vector<double> query(scan.size());
+  std::vector<int> idx;
+  std::vector<double> dist2;
+  // One linearisation at \p pose: the Gauss-Newton system (Huber-weighted, and plain for the
+  // covariance), the pair count and the squared residual sum.
+  struct System {
+    Matrix6d h = Matrix6d::Zero(), h_plain = Matrix6d::Zero();
+    Vector6d g = Vector6d::Zero();
+    std::size_t pairs = 0;
+    double r2 = 0.0;
+  };
+  const auto linearise = [&](const Eigen::Isometry3d& pose) {
+    for (std::size_t i = 0; i < n; ++i) {
+      const Eigen::Vector3d q = pose * Eigen::Vector3d(scan[3 * i], scan[3 * i + 1], scan[3 * i + 2]);
+      for (int c = 0; c < 3; ++c) query[3 * i + static_cast<std::size_t>(c)] = q[c];
+    }
+    s.nearest(query, n, idx, dist2);
+    System sys;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (idx[i] < 0 || !(dist2[i] <= max_d2)) continue;
+      const Eigen::Vector3d q(query[3 * i], query[3 * i + 1], query[3 * i + 2]);
+      const Eigen::Vector3d normal = s.normals.row(idx[i]).transpose();
+      const double r = normal.dot(q - s.points.row(idx[i]).transpose());
+      Vector6d j;
+      j << normal, q.cross(normal);
+      const double w = std::abs(r) <= options.huber_delta ? 1.0 : options.huber_delta / std::abs(r);
+      sys.h += w * j * j.transpose();
+      sys.h_plain += j * j.transpose();
+      sys.g += w * j * r;
+      sys.r2 += r * r;
+      ++sys.pairs;
+    }
+    return sys;
+  };
+  // Rotations are scaled by the scan's size so that the eigenvalues of translations and rotations
+  // compare (a rotation of 1 / L radians moves the scan about as far as 1 m).
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  for (std::size_t i = 0; i < n; ++i) centre += Eigen::Vector3d(scan[3 * i], scan[3 * i + 1], scan[3 * i + 2]);
+  centre /= static_cast<double>(n);
+  double spread = 0.0;
+  for (std::size_t i = 0; i < n; ++i)
+    spread += (Eigen::Vector3d(scan[3 * i], scan[3 * i + 1], scan[3 * i + 2]) - centre).squaredNorm();
+  const double length = std::max(std::sqrt(spread / static_cast<double>(n)), 1e-3);
+  Vector6d scale;
+  scale << 1.0, 1.0, 1.0, 1.0 / length, 1.0 / length, 1.0 / length;
+  const auto eigen_of = [&](const Matrix6d& h) {
+    return Eigen::SelfAdjointEigenSolver<Matrix6d>(scale.asDiagonal() * h * scale.asDiagonal());
+  };
+
+  ScanMatchResult result;
+  result.pose = initial;
+  result.scan_points = n;
+  Eigen::Isometry3d pose = initial;
+  bool settled = false;
+  int it = 0;
+  for (; it < options.max_iterations; ++it) {
+    const System sys = linearise(pose);
+    if (sys.pairs < 6) break;
+    // Solve in the scaled coordinates, only along the directions the pairs constrain.
+    const auto eig = eigen_of(sys.h);
+    const double top = eig.eigenvalues().maxCoeff();
+    const Vector6d gs = scale.asDiagonal() * sys.g;
+    Vector6d step_scaled = Vector6d::Zero();
+    for (int k = 0; k < 6; ++k)
+      if (eig.eigenvalues()[k] > options.degeneracy_ratio * top)
+        step_scaled -= eig.eigenvectors().col(k) * (eig.eigenvectors().col(k).dot(gs) / eig.eigenvalues()[k]);
+    const Vector6d step = scale.asDiagonal() * step_scaled;
+    pose = apply_step(step, pose);
+    if (step.head<3>().norm() < options.translation_tolerance && step.tail<3>().norm() < options.rotation_tolerance) {
+      settled = true;
+      ++it;
+      break;
+    }
+  }
+  result.iterations = it;
+  const System last = linearise(pose);
+  result.pairs = last.pairs;
+  result.score = static_cast<double>(last.pairs) / static_cast<double>(n);
+  result.fitness_rmse = last.pairs > 0 ? std::sqrt(last.r2 / static_cast<double>(last.pairs)) : 0.0;
+  // Covariance and unobservable directions from the plain Hessian at the final pose.
+  const auto eig = eigen_of(last.h_plain);
+  const double top = eig.eigenvalues().maxCoeff();
+  const double sigma2 = last.pairs > 6 ? last.r2 / static_cast<double>(last.pairs - 6) : 0.0;
+  Matrix6d cov_scaled = Matrix6d::Zero();
+  std::vector<int> weak;
+  for (int k = 0; k < 6; ++k) {
+    const Vector6d v = eig.eigenvectors().col(k);
+    if (top > 0.0 && eig.eigenvalues()[k] > options.degeneracy_ratio * top) {
+      cov_scaled += v * v.transpose() * (sigma2 / eig.eigenvalues()[k]);
+    } else {
+      weak.push_back(k);
+    }
+  }
+  // Back to metres and radians: cov = S cov_scaled S; unobservable directions in the same units.
+  result.covariance = scale.asDiagonal() * cov_scaled * scale.asDiagonal();
+  result.unobservable.resize(6, static_cast<Eigen::Index>(weak.size()));
+  for (std::size_t c = 0; c < weak.size(); ++c) {
+    const Vector6d v = (scale.asDiagonal() * eig.eigenvectors().col(weak[c])).normalized();
+    result.unobservable.col(static_cast<Eigen::Index>(c)) = v;
+    result.covariance += v * v.transpose() * kUnobservableVariance;
+  }
+
+  if (last.pairs < 6 || result.score < options.min_inlier_fraction) {
+    result.reason = "too few correspondences: " + std::to_string(last.pairs) + " of " + std::to_string(n) +
+                    " scan points within " + num(options.max_correspondence_distance) +
+                    " m of the map (does the scan overlap the map near the initial pose?)";
+  } else if (!weak.empty()) {
+    result.reason = "degenerate scene: " + std::to_string(weak.size()) +
+                    " direction(s) of the pose are not constrained (see unobservable)";
+  } else if (!settled) {
+    result.reason = "no convergence within " + std::to_string(options.max_iterations) + " iterations";
+  } else {
+    result.converged = true;
+    result.pose = pose;
+  }
+  return result;
+}
+
+// ---- ScanMatcher ------------------------------------------------------------------------------
+
+ScanMatcher::ScanMatcher(IMapperBackend& map, ScanMatcherOptions options) : map_(map), options_(std::move(options)) {
+  options_.validate();
+  if (options_.fine) {
+    const double threshold = options_.min_probability < 0.0 ? map.get_params().occupied_threshold : options_.min_probability;
+    const Eigen::MatrixXd v = options_.mean_hit_positions && map.get_hit_accumulation()
+                                  ? map.get_occupied_mean_positions(threshold)
+                                  : map.get_occupied_voxels(threshold);
+    if (v.rows() >= kNormalNeighbours) surface_ = std::make_shared<const MapSurface>(Eigen::MatrixXd(v.leftCols<3>()));
+  }
+}
+
+ScanMatchResult ScanMatcher::match(const Eigen::MatrixXd& scan_sensor, const Eigen::Isometry3d& initial) const {
+  check_pose(initial);
+  const double voxel = options_.scan_voxel > 0.0 ? options_.scan_voxel : map_.get_resolution();
+  const Eigen::MatrixXd scan = reduce_scan(scan_sensor, voxel, options_.max_range);
+  if (scan.rows() == 0)
+    throw std::invalid_argument("iwlomap: registration: the scan has no finite point within max_range = " +
+                                num(options_.max_range) + " m");
+  ScanMatchResult result;
+  result.pose = initial;
+  result.scan_points = static_cast<std::size_t>(scan.rows());
+  Eigen::Isometry3d start = initial;
+  if (options_.coarse) {
+    if (map_.get_num_nodes() == 0) {
+      result.reason = "the map is empty";
+      return result;
+    }
+    int levels = options_.coarse_levels;
+    if (levels == 0) {  // the widest window (2^(levels-1)) spans the search's x extent
+      const double cells = 2.0 * std::floor(options_.window.linear_xy / map_.get_resolution() + 1e-9) + 1.0;
+      levels = std::min(PrecomputationStack3D::kMaxLevels, 1 + static_cast<int>(std::ceil(std::log2(cells))));
+    }
+    // Every k-th point, k chosen to keep at most coarse_points.
+    const Eigen::Index stride = (scan.rows() + options_.coarse_points - 1) / options_.coarse_points;
+    Eigen::MatrixXd sample((scan.rows() + stride - 1) / stride, 3);
+    for (Eigen::Index i = 0; i < sample.rows(); ++i) sample.row(i) = scan.row(i * stride);
+    const auto coarse = CorrelativeScanMatcher3D::for_scan(map_, sample, initial, options_.window, levels);
+    const CoarseMatch m = coarse.match(sample, initial, options_.window, options_.min_coarse_score);
+    result.coarse_score = m.score;
+    if (!m.found) {
+      result.reason = "coarse stage: " + m.reason + " (" + num(options_.min_coarse_score) +
+                      "); the scan does not overlap the map within the search window";
+      return result;
+    }
+    start = m.pose;
+    if (!options_.fine) {
+      result.pose = m.pose;
+      result.score = m.score;
+      result.converged = true;
+      return result;
+    }
+  }
+  if (!surface_) {
+    result.reason = "the map has fewer than 8 occupied voxels to align to";
+    return result;
+  }
+  ScanMatchResult fine = surface_->align(scan, start, options_.icp);
+  fine.coarse_score = result.coarse_score;
+  if (!fine.converged) fine.pose = initial;
+  return fine;
+}
+
+}  // namespace iwlomap::registration
