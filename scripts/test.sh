@@ -4,7 +4,8 @@
 # runs every test under a virtual X server (the render tests need one). With CI=true, or with
 # --sanitize, it also builds and runs the suite with AddressSanitizer + UBSan (the tool included),
 # runs each fuzz target for 20 s (scripts/fuzz.sh), and runs the tests of the threaded code
-# (background jobs, the asynchronous mapper, multi-threaded scans) with ThreadSanitizer.
+# (background jobs, the asynchronous and the registered mapper, multi-threaded scans) with
+# ThreadSanitizer.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -40,5 +41,5 @@ if [ "$SANITIZE" = 1 ]; then
   # Without the PCL layer: PCL's io library loads OpenNI2, whose start-up code the sanitizer reports.
   BUILD_DIR=build-tsan BUILD_TYPE=RelWithDebInfo bash scripts/build.sh -DIWLOMAP_BUILD_TESTS=ON \
     -DIWLOMAP_TSAN=ON -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_WITH_VIEWER=OFF -DIWLOMAP_WITH_FILTERS=OFF
-  (cd build-tsan && ctest --output-on-failure -j 2 -R "BackgroundJob|AsyncMapper|Threads")
+  (cd build-tsan && ctest --output-on-failure -j 2 -R "BackgroundJob|AsyncMapper|Threads|RegisteredMapper")
 fi

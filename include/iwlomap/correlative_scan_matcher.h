@@ -12,6 +12,12 @@
 /// discretised window returns (ties go to the candidate first in the order yaw, x, y, z, each
 /// ascending). Roll and pitch are taken from the initial pose.
 ///
+/// Thin surfaces (one voxel thick) score only where the scan's points fall in the same voxels, so
+/// a pose half a voxel off the candidate lattice could score half of what it deserves; the
+/// discretised map is therefore dilated by \p dilation voxels (each cell takes the maximum of its
+/// (2 dilation + 1)^3 neighbourhood) before the max grids are built. The optimum is then a plateau
+/// about a voxel wide, which is what this stage is for: ICP refines the pose.
+///
 /// The map is discretised once per matcher over a box (RAM: one byte per voxel per level), so a
 /// matcher serves many scans of one region; the box must hold every point of a scan at every
 /// candidate pose (points outside count as unknown, value 0, which keeps the search exact for the
@@ -59,15 +65,17 @@ class CorrelativeScanMatcher3D {
   /// Discretises \p map over \p region (discretize_volume()) and builds \p num_levels max grids
   /// (widths 1 .. 2^(num_levels-1)). Throws std::invalid_argument for a bad box or level count and
   /// std::length_error when the grids would be too large.
+  /// \p dilation: voxels (>= 0) by which the discretised map is dilated.
   CorrelativeScanMatcher3D(const IMapperBackend& map, const VoxelBox& region,
-                           int num_levels = PrecomputationStack3D::kDefaultLevels);
+                           int num_levels = PrecomputationStack3D::kDefaultLevels, int dilation = 1);
 
   /// A matcher over the box holding \p scan_sensor at \p initial (sensor to map) grown by the
   /// window and the largest rotation it allows: what match() with these arguments needs.
   [[nodiscard]] static CorrelativeScanMatcher3D for_scan(const IMapperBackend& map, const Eigen::MatrixXd& scan_sensor,
                                                          const Eigen::Isometry3d& initial,
                                                          const SearchWindow3D& window,
-                                                         int num_levels = PrecomputationStack3D::kDefaultLevels);
+                                                         int num_levels = PrecomputationStack3D::kDefaultLevels,
+                                                         int dilation = 1);
 
   /// The best pose of the scan \p scan_sensor (N x 3, metres, sensor frame; non-finite rows are
   /// skipped) within \p window around \p initial (sensor to map), by branch and bound. Found when

@@ -255,9 +255,21 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
   Eigen::Isometry3d pose = initial;
   bool settled = false;
   int it = 0;
+  // Against a lattice of voxel centres the pairs can alternate between neighbouring centres, so
+  // the steps never shrink below the tolerance although the fit no longer improves: three steps
+  // in a row that lower the mean squared residual by less than 1e-4 of it also end the search.
+  double last_mse = std::numeric_limits<double>::infinity();
+  int stalled = 0;
   for (; it < options.max_iterations; ++it) {
     const System sys = linearise(pose);
     if (sys.pairs < 6) break;
+    const double mse = sys.r2 / static_cast<double>(sys.pairs);
+    stalled = mse > last_mse * (1.0 - 1e-4) ? stalled + 1 : 0;
+    last_mse = std::min(last_mse, mse);
+    if (stalled >= 3) {
+      settled = true;
+      break;
+    }
     // Solve in the scaled coordinates, only along the directions the pairs constrain.
     const auto eig = eigen_of(sys.h);
     const double top = eig.eigenvalues().maxCoeff();
@@ -329,6 +341,12 @@ ScanMatcher::ScanMatcher(IMapperBackend& map, ScanMatcherOptions options) : map_
                                   : map.get_occupied_voxels(threshold);
     if (v.rows() >= kNormalNeighbours) surface_ = std::make_shared<const MapSurface>(Eigen::MatrixXd(v.leftCols<3>()));
   }
+}
+
+ScanMatcher::ScanMatcher(IMapperBackend& map, const Eigen::MatrixXd& surface_points, ScanMatcherOptions options)
+    : map_(map), options_(std::move(options)) {
+  options_.validate();
+  if (options_.fine) surface_ = std::make_shared<const MapSurface>(surface_points);
 }
 
 ScanMatchResult ScanMatcher::match(const Eigen::MatrixXd& scan_sensor, const Eigen::Isometry3d& initial) const {

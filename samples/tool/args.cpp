@@ -6,6 +6,9 @@
 #include <charconv>
 #include <cmath>
 #include <cstdlib>
+#include <sstream>
+#include <string>
+#include <vector>
 
 namespace iwlomap::tool {
 
@@ -89,6 +92,27 @@ std::string shortest(double value) {
   char buf[32];
   const auto r = std::to_chars(buf, buf + sizeof buf, value);
   return std::string(buf, r.ptr);
+}
+
+namespace {
+
+double parse_number(const std::string& option, const std::string& text) {
+  char* end = nullptr;
+  const double d = std::strtod(text.c_str(), &end);
+  if (text.empty() || end != text.c_str() + text.size() || !std::isfinite(d))
+    throw UsageError(option + " needs finite numbers, got '" + text + "'");
+  return d;
+}
+
+}  // namespace
+
+std::vector<double> parse_list(const std::string& option, const std::string& text, std::size_t count) {
+  std::vector<double> out;
+  std::stringstream ss(text);
+  for (std::string item; std::getline(ss, item, ',');) out.push_back(parse_number(option, item));
+  if (out.size() != count || (!text.empty() && text.back() == ','))
+    throw UsageError(option + " needs " + std::to_string(count) + " comma-separated numbers, got '" + text + "'");
+  return out;
 }
 
 }  // namespace iwlomap::tool

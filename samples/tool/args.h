@@ -49,4 +49,7 @@ class Args {
 /// Lower-case file extension with the dot (".pcd"), or "" when there is none.
 [[nodiscard]] std::string extension(const std::string& path);
 
+/// \p count comma-separated finite numbers from \p text; UsageError naming \p option otherwise.
+[[nodiscard]] std::vector<double> parse_list(const std::string& option, const std::string& text, std::size_t count);
+
 }  // namespace iwlomap::tool

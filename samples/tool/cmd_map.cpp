@@ -12,7 +12,14 @@
 #include <iwlomap/filters/cloud_conversions.h>
 #include <iwlomap/voxel_colors.h>
 
+#ifdef IWLOMAP_HAVE_REGISTRATION
+#include "registration_options.h"
+
+#include <iwlomap/registration/registered_mapper.h>
+#endif
+
 #include <chrono>
+#include <cstdio>
 #include <filesystem>
 #include <iostream>
 #include <optional>
@@ -41,18 +48,35 @@ output:
                             statistics are gathered from this run on (every backend; a disk map
                             keeps them in its tiles)
   --no-colors               ignore the inputs' colours: no rgb field, the snapshot by height
+  --register                register each file against the map so far before integrating it
+                            (initial guess: its VIEWPOINT pose with the last correction; the
+                            first file goes in as given); the summary lists the corrections
 )";
 
 }  // namespace
+
+// "0.023 m": three decimals, for the summary.
+[[maybe_unused]] std::string metres(double m) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.3f m", m);
+  return buf;
+}
 
 int run_map(const std::vector<std::string>& argv) {
   auto value_opts = map_value_options();
   value_opts.insert({"-o", "--output", "--octomap", "--snapshot"});
   auto flag_opts = map_flag_options();
-  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async", "--mean-positions", "--no-colors"});
+  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async", "--mean-positions", "--no-colors", "--register"});
+#ifdef IWLOMAP_HAVE_REGISTRATION
+  value_opts.merge(registration_value_options());
+  flag_opts.merge(registration_flag_options());
+#endif
   const Args args(argv, value_opts, flag_opts);
   if (args.flag("-h") || args.flag("--help")) {
     std::cout << kHelp << map_outputs_help() << map_options_help() << "  -q, --quiet               no summary, no progress bar\n";
+#ifdef IWLOMAP_HAVE_REGISTRATION
+    std::cout << registration_options_help();
+#endif
     return 0;
   }
   const auto& inputs = args.positional();
@@ -71,6 +95,14 @@ int run_map(const std::vector<std::string>& argv) {
   std::optional<VoxelColorMeans> colors;  // from the first coloured input on
   const bool async = args.flag("--async");
   if (async && !setup.ray_casting) throw UsageError("--async needs ray casting (drop --no-rays)");
+  const bool register_scans = args.flag("--register");
+  if (register_scans && (async || !setup.ray_casting))
+    throw UsageError("--register needs ray casting and runs without --async");
+#ifndef IWLOMAP_HAVE_REGISTRATION
+  if (register_scans) throw std::runtime_error("--register: this build has no registration layer (IWLOMAP_WITH_REGISTRATION)");
+#endif
+  std::size_t registered_files = 0;
+  std::vector<std::string> corrections;
   const auto started = std::chrono::steady_clock::now();
   std::size_t points = 0;
   {
@@ -78,6 +110,17 @@ int run_map(const std::vector<std::string>& argv) {
     IntensityWarning warning("map");
     std::optional<AsyncMapper> background;
     if (async) background.emplace(setup.map, ExecutionMode::kParallel, 2);
+#ifdef IWLOMAP_HAVE_REGISTRATION
+    std::optional<registration::RegisteredMapper> registered;
+    if (register_scans) {
+      registration::RegisteredMapperOptions ro;
+      ro.matcher = registration_options_from(args);
+      ro.max_range = setup.max_range;
+      registered.emplace(setup.map, ExecutionMode::kSequential, ro);
+    }
+#else
+    constexpr bool registered = false;
+#endif
     for (std::size_t i = 0; i < inputs.size(); ++i) {
       const std::string name = std::filesystem::path(inputs[i]).filename().string();
       progress.update(i, name);
@@ -88,11 +131,28 @@ int run_map(const std::vector<std::string>& argv) {
         for (std::size_t k = 0; k < in.cloud->size(); ++k) intensity[static_cast<Eigen::Index>(k)] = (*in.cloud)[k].intensity;
         warning.check(inputs[i], intensity, setup.params);
       }
-      const Eigen::Vector3d origin = in.cloud->sensor_origin_.head<3>().cast<double>();
+      Eigen::Vector3d origin = in.cloud->sensor_origin_.head<3>().cast<double>();
       Eigen::MatrixXd xyz;
       Eigen::VectorXd intensity;
-      if (background || (in.colors && keep_colors))
+      if (background || (in.colors && keep_colors) || registered)
         cloud_to_matrices(*in.cloud, nullptr, setup.params.intensity_max, xyz, intensity);
+#ifdef IWLOMAP_HAVE_REGISTRATION
+      if (registered) {
+        // The file's points are in the map frame at its VIEWPOINT pose: back to the sensor frame,
+        // registered, integrated at the corrected pose (which the colours below then use).
+        Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+        pose.linear() = in.cloud->sensor_orientation_.cast<double>().normalized().toRotationMatrix();
+        pose.translation() = origin;
+        const Eigen::MatrixXd sensor = (xyz.rowwise() - origin.transpose()) * pose.linear();
+        registered->integrate(pose, sensor, intensity);
+        const registration::RegisteredScan r = registered->sync().front();
+        if (r.registered) ++registered_files;
+        corrections.push_back(name + ": " + (r.registered ? "registered" : r.match.reason.empty() ? "first scan, as given" : "not registered (" + r.match.reason + ")") +
+                              ", moved " + metres((r.integrated_pose.translation() - origin).norm()));
+        origin = r.integrated_pose.translation();
+        xyz = (sensor * r.integrated_pose.linear().transpose()).rowwise() + origin.transpose();
+      }
+#endif
       if (in.colors && keep_colors) {
         // The hits the map counts, so a voxel's colour is that of the points that made it occupied.
         if (!colors) colors.emplace(setup.map->get_resolution());
@@ -104,7 +164,7 @@ int run_map(const std::vector<std::string>& argv) {
       }
       if (background)
         background->integrate(origin, std::move(xyz), std::move(intensity), setup.max_range);
-      else
+      else if (!registered)  // (a registered file went in above)
         integrate_cloud(*setup.map, *in.cloud, nullptr, setup.ray_casting, setup.max_range);
       progress.update(i + 1, name);
     }
@@ -140,6 +200,10 @@ int run_map(const std::vector<std::string>& argv) {
               << occupied.size() << " occupied (p > " << threshold << ")"
               << (colors ? ", " + std::to_string(coloured) + " of them coloured" : std::string()) << " in " << seconds
               << " s\n";
+    if (register_scans) {
+      std::cout << "registered " << registered_files << " of " << inputs.size() << " file(s)\n";
+      for (const std::string& c : corrections) std::cout << "  " << c << "\n";
+    }
     for (const std::string& written : files.paths()) std::cout << "wrote " << written << "\n";
   }
   return 0;

@@ -9,6 +9,7 @@
 
 #ifdef IWLOMAP_HAVE_VIEWER
 #include "cloud_io.h"
+#include "voxel_cloud.h"
 #include "map_open.h"
 #include "output_files.h"
 
@@ -71,23 +72,6 @@ COLOR is #rrggbb or R,G,B with components in [0, 1].
 
 #ifdef IWLOMAP_HAVE_VIEWER
 
-double parse_number(const std::string& option, const std::string& text) {
-  char* end = nullptr;
-  const double d = std::strtod(text.c_str(), &end);
-  if (text.empty() || end != text.c_str() + text.size() || !std::isfinite(d))
-    throw UsageError(option + " needs finite numbers, got '" + text + "'");
-  return d;
-}
-
-std::vector<double> parse_list(const std::string& option, const std::string& text, std::size_t count) {
-  std::vector<double> out;
-  std::stringstream ss(text);
-  for (std::string item; std::getline(ss, item, ',');) out.push_back(parse_number(option, item));
-  if (out.size() != count || (!text.empty() && text.back() == ','))
-    throw UsageError(option + " needs " + std::to_string(count) + " comma-separated numbers, got '" + text + "'");
-  return out;
-}
-
 Eigen::Vector3d parse_vector(const std::string& option, const std::string& text) {
   const auto v = parse_list(option, text, 3);
   return {v[0], v[1], v[2]};
@@ -108,47 +92,6 @@ viewer::Rgb parse_color(const std::string& option, const std::string& text) {
   for (double c : v)
     if (c < 0.0 || c > 1.0) throw UsageError(option + " components must be in [0, 1], got '" + text + "'");
   return {v[0], v[1], v[2]};
-}
-
-/// The voxel edge of a grid of voxel centres: the smallest gap between distinct centre coordinates
-/// along any axis (centres of neighbouring voxels differ by exactly one edge). The tolerance
-/// absorbs the float rounding of PCD files.
-std::optional<double> infer_resolution(const Eigen::MatrixXd& v) {
-  std::optional<double> best;
-  for (int axis = 0; axis < 3; ++axis) {
-    std::vector<double> c;
-    c.reserve(static_cast<std::size_t>(v.rows()));
-    for (Eigen::Index i = 0; i < v.rows(); ++i)
-      if (std::isfinite(v(i, axis))) c.push_back(v(i, axis));
-    std::sort(c.begin(), c.end());
-    for (std::size_t i = 1; i < c.size(); ++i) {
-      const double gap = c[i] - c[i - 1];
-      const double tol = 1e-5 * std::max({1.0, std::abs(c[i]), std::abs(c[i - 1])});
-      if (gap > tol && (!best || gap < *best)) best = gap;
-    }
-  }
-  // Round away the float noise (to 4 significant digits): 0.0999999 -> 0.1.
-  if (best) {
-    const double scale = std::pow(10.0, 3 - std::floor(std::log10(*best)));
-    best = std::round(*best * scale) / scale;
-  }
-  return best;
-}
-
-// True when (nearly) every coordinate lies at a voxel centre, (k + 0.5) * resolution, on every
-// axis: the cloud is a voxel cloud as 'iwlomap map' writes it, not a raw scan whose smallest
-// coordinate gap says nothing about a voxel size.
-bool on_voxel_lattice(const Eigen::MatrixXd& v, double resolution) {
-  if (!(resolution >= 1e-3)) return false;
-  std::size_t on = 0, all = 0;
-  for (Eigen::Index i = 0; i < v.rows(); ++i)
-    for (int axis = 0; axis < 3; ++axis) {
-      if (!std::isfinite(v(i, axis))) continue;
-      const double k = v(i, axis) / resolution - 0.5;
-      ++all;
-      if (std::abs(k - std::round(k)) < 1e-3) ++on;
-    }
-  return all > 0 && static_cast<double>(on) >= 0.99 * static_cast<double>(all);
 }
 
 viewer::SnapshotOptions options_from(const Args& args) {

@@ -16,5 +16,6 @@ int run_generate(const std::vector<std::string>& args);
 int run_render(const std::vector<std::string>& args);
 int run_sonar(const std::vector<std::string>& args);
 int run_pyramid(const std::vector<std::string>& args);
+int run_register(const std::vector<std::string>& args);
 
 }  // namespace iwlomap::tool

@@ -29,6 +29,7 @@ commands:
   render     draw a voxel map (.pcd/.ply, tile directory, .bt/.ot) into a PNG image, off screen
   sonar      map imaging-sonar pings (Oculus .raw) into one map, write the occupied voxels
   pyramid    write a map's multi-resolution max grids (Cartographer's precomputation grids) as PNGs
+  register   find where a scan (sensor frame) fits a map; prints its pose
 
 Run 'iwlomap <command> --help' for the options of a command, 'iwlomap --version' for the version
 and the layers of this build.
@@ -71,6 +72,7 @@ int main(int argc, char** argv) {
     if (command == "render") return run_render(rest);
     if (command == "sonar") return run_sonar(rest);
     if (command == "pyramid") return run_pyramid(rest);
+    if (command == "register") return run_register(rest);
     throw UsageError("unknown command '" + command + "'");
   } catch (const UsageError& e) {
     std::cerr << "iwlomap " << (command.rfind('-', 0) == 0 ? std::string() : command + " ") << "usage error: " << e.what()

@@ -90,15 +90,31 @@ struct CorrelativeScanMatcher3D::Problem {
   int steps = 0;
 };
 
-CorrelativeScanMatcher3D::CorrelativeScanMatcher3D(const IMapperBackend& map, const VoxelBox& region, int num_levels)
+CorrelativeScanMatcher3D::CorrelativeScanMatcher3D(const IMapperBackend& map, const VoxelBox& region, int num_levels,
+                                                   int dilation)
     : region_(region), resolution_(map.get_resolution()) {
   region.validate();
-  stack_ = std::make_shared<const PrecomputationStack3D>(discretize_volume(map, region), num_levels);
+  if (dilation < 0 || dilation > 16)
+    throw std::invalid_argument("iwlomap: CorrelativeScanMatcher3D: dilation = " + std::to_string(dilation) +
+                                " must be in [0, 16]");
+  DiscreteGrid3D base = discretize_volume(map, region);
+  if (dilation > 0) {
+    // Cell c takes the maximum over c - dilation .. c + dilation: a window of 2 dilation + 1
+    // starting at c - dilation.
+    const PrecomputationGrid3D wide(base, 2 * dilation + 1);
+    const Index size = base.size();
+    std::vector<std::uint8_t>& v = base.values();
+    std::size_t o = 0;
+    for (int z = 0; z < size.z(); ++z)
+      for (int y = 0; y < size.y(); ++y)
+        for (int x = 0; x < size.x(); ++x) v[o++] = wide.window_max(Index(x, y, z) - Index::Constant(dilation));
+  }
+  stack_ = std::make_shared<const PrecomputationStack3D>(base, num_levels);
 }
 
 CorrelativeScanMatcher3D CorrelativeScanMatcher3D::for_scan(const IMapperBackend& map, const Eigen::MatrixXd& scan_sensor,
                                                             const Eigen::Isometry3d& initial, const SearchWindow3D& window,
-                                                            int num_levels) {
+                                                            int num_levels, int dilation) {
   window.validate();
   check_pose(initial);
   const std::vector<Eigen::Vector3d> points = finite_points(scan_sensor);
@@ -117,7 +133,7 @@ CorrelativeScanMatcher3D CorrelativeScanMatcher3D::for_scan(const IMapperBackend
     }
   }
   const Eigen::Vector3d grow(window.linear_xy + 2 * res, window.linear_xy + 2 * res, window.linear_z + 2 * res);
-  return CorrelativeScanMatcher3D(map, VoxelBox::from_world(lo - grow, hi + grow, res), num_levels);
+  return CorrelativeScanMatcher3D(map, VoxelBox::from_world(lo - grow, hi + grow, res), num_levels, dilation);
 }
 
 CorrelativeScanMatcher3D::Problem CorrelativeScanMatcher3D::prepare(const Eigen::MatrixXd& scan_sensor,

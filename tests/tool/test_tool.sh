@@ -43,7 +43,7 @@ for cmd in map info generate export; do
   check "help_$cmd" 0 "$TOOL" "$cmd" --help
   expect "help_${cmd}_usage" grep -q "usage: iwlomap $cmd" "$WORK/help_$cmd.out"
 done
-expect map_help_lists_every_option bash -c "for o in --tile-size --cache-tiles --octomap --snapshot --threads --async --resolution --backend --tiles --max-range --no-rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio --max-memory; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
+expect map_help_lists_every_option bash -c "for o in --tile-size --cache-tiles --octomap --snapshot --threads --async --resolution --backend --tiles --max-range --no-rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio --max-memory --register --window --min-score; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
 
 check help_sonar 0 "$TOOL" sonar --help
 expect sonar_help_max_range_once test "$(grep -c -- '--max-range' "$WORK/help_sonar.out")" = 1
@@ -224,6 +224,26 @@ if has_layer viewer && [ -n "${DISPLAY:-}" ]; then
   check map_colour_snapshot 0 "$TOOL" map "$WORK/colour_wall.pcd" --resolution 0.1 --sensor lidar --snapshot "$WORK/colour_snap.png"
   expect map_colour_snapshot_png test -s "$WORK/colour_snap.png"
 fi
+
+# Registration: the synthetic scan in its sensor frame (the scan's sensor is at (0, 0, 1.5), level)
+# against the map of the same scene, from 0.36 m / 4 degrees off: the last line is the pose.
+check help_register 0 "$TOOL" register --help
+expect help_register_pose_line grep -q "pose x y z qw qx qy qz" "$WORK/help_register.out"
+check reg_map 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --mean-positions -o "$WORK/reg_map.pcd"
+check reg_sensor_frame 0 pcl_transform_point_cloud "$WORK/scan.pcd" "$WORK/reg_sensor.pcd" -trans 0,0,-1.5
+check register 0 "$TOOL" register --map "$WORK/reg_map.pcd" --resolution 0.2 --scan "$WORK/reg_sensor.pcd" --initial "0.3 -0.2 1.6 0 0 4"
+expect register_last_line_is_the_pose bash -c "tail -n 1 '$WORK/register.out' | grep -Eq '^pose( -?[0-9.]+){7}$'"
+expect register_reports grep -q "^converged yes" "$WORK/register.out"
+expect register_finds_the_sensor awk '/^pose/ { d = sqrt($2 * $2 + $3 * $3 + ($4 - 1.5) ^ 2); exit !(d < 0.03 && $5 > 0.99999) }' "$WORK/register.out"
+check register_far_off 1 "$TOOL" register --map "$WORK/reg_map.pcd" --resolution 0.2 --scan "$WORK/reg_sensor.pcd" --initial "300 0 1.5 0 0 0"
+expect register_far_off_says_why grep -q "not converged" "$WORK/register_far_off.err"
+expect register_far_off_pose_line bash -c "tail -n 1 '$WORK/register_far_off.out' | grep -q '^pose 300'"
+check register_bad_initial 2 "$TOOL" register --map "$WORK/reg_map.pcd" --resolution 0.2 --scan "$WORK/reg_sensor.pcd" --initial "1 2 3"
+check register_bad_window 2 "$TOOL" register --map "$WORK/reg_map.pcd" --resolution 0.2 --scan "$WORK/reg_sensor.pcd" --window 0,0.5,10
+check register_no_map 2 "$TOOL" register --scan "$WORK/reg_sensor.pcd"
+check map_register 0 "$TOOL" map "$WORK/scan.pcd" "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --register -o "$WORK/reg_twice.pcd"
+expect map_register_summary grep -q "registered 1 of 2 file(s)" "$WORK/map_register.out"
+check map_register_async 2 "$TOOL" map "$WORK/scan.pcd" --register --async
 
 # Any tile size: 10 m at 0.1 m is 12.5 blocks, rounded to 13 (10.4 m), reported by info.
 check map_disk_default_tile 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.1 --sensor lidar --backend disk \

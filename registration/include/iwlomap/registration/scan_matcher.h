@@ -34,7 +34,8 @@ struct IcpOptions {
   double max_correspondence_distance = 0.5; ///< a scan point farther than this from every map point is unpaired
   double huber_delta = 0.05;                ///< residuals beyond this are down-weighted (Huber)
   double translation_tolerance = 1e-4;      ///< stop when a step moves less than this ...
-  double rotation_tolerance = 1e-5;         ///< ... and turns less than this
+  double rotation_tolerance = 1e-5;         ///< ... and turns less than this, or when three steps in
+                                            ///< a row lower the mean squared residual by < 1e-4 of it
   double min_inlier_fraction = 0.3;         ///< converged needs at least this fraction of the scan paired
   /// A direction of the 6-D pose is unobservable when its eigenvalue of the normalised Hessian is
   /// below this fraction of the largest one (a plane leaves three such directions).
@@ -124,6 +125,11 @@ class ScanMatcher {
   /// Reads \p map's occupied voxels for ICP now; the coarse stage reads \p map at each match(), so
   /// the map must outlive the matcher and not change while it matches (re-create after updates).
   explicit ScanMatcher(IMapperBackend& map, ScanMatcherOptions options = {});
+  /// As above, with \p surface_points (N x 3, metres, map frame) as the ICP target instead of the
+  /// map's occupied voxels: e.g. a map's mean hit positions kept in a file, which place surfaces
+  /// better than voxel centres do (centres are up to half a voxel off the surface, and so can be
+  /// the pose ICP finds against them).
+  ScanMatcher(IMapperBackend& map, const Eigen::MatrixXd& surface_points, ScanMatcherOptions options = {});
 
   /// Registers \p scan_sensor (N x 3, metres, sensor frame; non-finite rows skipped) near
   /// \p initial (sensor to map). Throws std::invalid_argument for a scan without a finite point
