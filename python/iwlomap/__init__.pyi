@@ -19,6 +19,7 @@ Vector3 = npt.ArrayLike  # (3,)
 __version__: str
 HAS_OCTOMAP: bool
 HAS_VIEWER: bool
+HAS_REGISTRATION: bool
 MAX_RAY_VOXELS: float
 UNKNOWN_VALUE: int
 
@@ -363,6 +364,93 @@ class AsyncMapper:
     def is_running(self) -> bool: ...
     def dropped(self) -> int: ...
     def terminate(self) -> None: ...
+
+Pose = npt.ArrayLike  # (4, 4) homogeneous transform, sensor to map
+
+class SearchWindow3D:
+    linear_xy: float
+    linear_z: float
+    angular_yaw: float
+    def __init__(self, *, linear_xy: float = 1.0, linear_z: float = 0.5, angular_yaw: float = 0.17453292519943295
+                 ) -> None: ...
+    def validate(self) -> None: ...
+
+class CoarseMatch:
+    found: bool
+    pose: npt.NDArray[np.float64]
+    score: float
+    score_sum: int
+    yaw_steps: int
+    yaw_step: float
+    candidates: int
+    nodes_visited: int
+    reason: str
+
+class CorrelativeScanMatcher3D:
+    @staticmethod
+    def for_scan(map: IMapperBackend, scan_sensor: Points, initial: Pose, window: SearchWindow3D = ...,
+                 num_levels: int = 7, dilation: int = 1) -> CorrelativeScanMatcher3D: ...
+    def match(self, scan_sensor: Points, initial: Pose, window: SearchWindow3D = ...,
+              min_score: float = 0.0) -> CoarseMatch: ...
+    def match_exhaustive(self, scan_sensor: Points, initial: Pose, window: SearchWindow3D = ...,
+                         min_score: float = 0.0) -> CoarseMatch: ...
+
+class IcpOptions:
+    max_iterations: int
+    max_correspondence_distance: float
+    huber_delta: float
+    translation_tolerance: float
+    rotation_tolerance: float
+    min_inlier_fraction: float
+    degeneracy_ratio: float
+    def __init__(self) -> None: ...
+    def validate(self) -> None: ...
+
+class ScanMatcherOptions:
+    coarse: bool
+    fine: bool
+    window: SearchWindow3D
+    min_coarse_score: float
+    coarse_points: int
+    coarse_levels: int
+    max_range: float
+    scan_voxel: float
+    mean_hit_positions: bool
+    min_probability: float
+    icp: IcpOptions
+    def __init__(self) -> None: ...
+    def validate(self) -> None: ...
+
+class ScanMatchResult:
+    pose: npt.NDArray[np.float64]
+    score: float
+    fitness_rmse: float
+    iterations: int
+    converged: bool
+    reason: str
+    coarse_score: float
+    scan_points: int
+    pairs: int
+    covariance: npt.NDArray[np.float64]
+    unobservable: npt.NDArray[np.float64]
+
+class ScanMatcher:
+    def __init__(self, map: IMapperBackend, options: ScanMatcherOptions = ...) -> None: ...
+    def match(self, scan_sensor: Points, initial: Pose) -> ScanMatchResult: ...
+
+class RegisteredScan:
+    given_pose: npt.NDArray[np.float64]
+    initial_guess: npt.NDArray[np.float64]
+    integrated_pose: npt.NDArray[np.float64]
+    registered: bool
+    match: ScanMatchResult
+
+class RegisteredMapper:
+    def __init__(self, map: IMapperBackend, mode: ExecutionMode = ..., options: ScanMatcherOptions = ...,
+                 max_range: float = -1.0, queue_capacity: int = 4) -> None: ...
+    def integrate(self, pose: Pose, points_sensor: Points, intensities: Values) -> None: ...
+    def sync(self) -> list[RegisteredScan]: ...
+    def correction(self) -> npt.NDArray[np.float64]: ...
 
 class PcdCloud:
     fields: dict[str, npt.NDArray[np.generic]]
