@@ -412,6 +412,7 @@ class ScanMatcherOptions:
     window: SearchWindow3D
     min_coarse_score: float
     coarse_points: int
+    coarse_max_range: float
     coarse_levels: int
     max_range: float
     scan_voxel: float

@@ -98,6 +98,7 @@ void bind_registration(py::module_& m) {
       .def_readwrite("window", &r::ScanMatcherOptions::window)
       .def_readwrite("min_coarse_score", &r::ScanMatcherOptions::min_coarse_score)
       .def_readwrite("coarse_points", &r::ScanMatcherOptions::coarse_points)
+      .def_readwrite("coarse_max_range", &r::ScanMatcherOptions::coarse_max_range)
       .def_readwrite("coarse_levels", &r::ScanMatcherOptions::coarse_levels)
       .def_readwrite("max_range", &r::ScanMatcherOptions::max_range)
       .def_readwrite("scan_voxel", &r::ScanMatcherOptions::scan_voxel)

@@ -82,7 +82,7 @@ void ScanMatcherOptions::validate() const {
   if (coarse_levels < 0 || coarse_levels > PrecomputationStack3D::kMaxLevels)
     throw std::invalid_argument("iwlomap: ScanMatcherOptions: coarse_levels = " + std::to_string(coarse_levels) +
                                 " must be in [0, 16] (0: as the window needs)");
-  if (std::isnan(max_range) || std::isnan(scan_voxel) || std::isnan(min_probability))
+  if (std::isnan(max_range) || std::isnan(scan_voxel) || std::isnan(min_probability) || std::isnan(coarse_max_range))
     throw std::invalid_argument("iwlomap: ScanMatcherOptions: max_range, scan_voxel and min_probability must not be NaN");
   icp.validate();
 }
@@ -370,10 +370,17 @@ ScanMatchResult ScanMatcher::match(const Eigen::MatrixXd& scan_sensor, const Eig
       const double cells = 2.0 * std::floor(options_.window.linear_xy / map_.get_resolution() + 1e-9) + 1.0;
       levels = std::min(PrecomputationStack3D::kMaxLevels, 1 + static_cast<int>(std::ceil(std::log2(cells))));
     }
-    // Every k-th point, k chosen to keep at most coarse_points.
-    const Eigen::Index stride = (scan.rows() + options_.coarse_points - 1) / options_.coarse_points;
-    Eigen::MatrixXd sample((scan.rows() + stride - 1) / stride, 3);
-    for (Eigen::Index i = 0; i < sample.rows(); ++i) sample.row(i) = scan.row(i * stride);
+    // The points within coarse_max_range, every k-th of them, k chosen to keep at most
+    // coarse_points; all points when none is that close.
+    std::vector<Eigen::Index> near;
+    for (Eigen::Index i = 0; i < scan.rows(); ++i)
+      if (options_.coarse_max_range <= 0.0 || scan.row(i).norm() <= options_.coarse_max_range) near.push_back(i);
+    if (near.empty())
+      for (Eigen::Index i = 0; i < scan.rows(); ++i) near.push_back(i);
+    const std::size_t stride = (near.size() + static_cast<std::size_t>(options_.coarse_points) - 1) /
+                               static_cast<std::size_t>(options_.coarse_points);
+    Eigen::MatrixXd sample(static_cast<Eigen::Index>((near.size() + stride - 1) / stride), 3);
+    for (Eigen::Index i = 0; i < sample.rows(); ++i) sample.row(i) = scan.row(near[static_cast<std::size_t>(i) * stride]);
     const auto coarse = CorrelativeScanMatcher3D::for_scan(map_, sample, initial, options_.window, levels);
     const CoarseMatch m = coarse.match(sample, initial, options_.window, options_.min_coarse_score);
     result.coarse_score = m.score;

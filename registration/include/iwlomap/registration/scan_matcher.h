@@ -53,6 +53,10 @@ struct ScanMatcherOptions {
   /// The coarse stage scores at most this many of the reduced scan's points (every k-th): its
   /// time is proportional to the count, and a voxel-level pose needs far fewer points than ICP.
   int coarse_points = 1500;
+  /// The coarse stage uses only points within this range of the sensor (metres; <= 0: max_range):
+  /// its grid covers the scan at every pose of the window, so its size (and the time to build it)
+  /// grows with the square of the range.
+  double coarse_max_range = 25.0;
   /// Max-grid levels of the coarse stage; 0: as many as the window needs (the widest level covers
   /// the window's x extent), which keeps the grids small.
   int coarse_levels = 0;
