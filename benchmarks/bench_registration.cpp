@@ -189,7 +189,7 @@ int main(int argc, char** argv) {
          return run_pcl(r, t, c, i);
        }},
   };
-  const std::vector<std::pair<double, double>> levels = {{0.2, 2.0}, {0.5, 5.0}, {0.8, 8.0}};
+  const std::vector<std::pair<double, double>> levels = {{0.2, 2.0}, {0.5, 5.0}, {0.8, 8.0}, {1.0, 10.0}};
   std::printf("scan-to-map registration, %d trial(s) per scene case and error level; success = within 5 cm "
               "and 0.5 deg of the truth\n", trials);
   std::printf("%-22s %-16s %10s %12s %14s %14s\n", "method", "initial error", "success", "median ms",
