@@ -175,11 +175,21 @@ MapSurface::MapSurface(const Eigen::MatrixXd& points) : impl_(std::make_unique<I
   }
 }
 
-MapSurface MapSurface::from_map(IMapperBackend& map, double min_probability, bool mean_hit_positions) {
+namespace {
+
+// The occupied voxels of \p map as N x 3 points: probability above \p min_probability (< 0: the
+// map's threshold), at their mean hit positions when asked and the map accumulates hits.
+Eigen::MatrixXd surface_points(IMapperBackend& map, double min_probability, bool mean_hit_positions) {
   const double threshold = min_probability < 0.0 ? map.get_params().occupied_threshold : min_probability;
   const Eigen::MatrixXd v = mean_hit_positions && map.get_hit_accumulation() ? map.get_occupied_mean_positions(threshold)
                                                                              : map.get_occupied_voxels(threshold);
-  return MapSurface(Eigen::MatrixXd(v.leftCols<3>()));
+  return v.leftCols<3>();
+}
+
+}  // namespace
+
+MapSurface MapSurface::from_map(IMapperBackend& map, double min_probability, bool mean_hit_positions) {
+  return MapSurface(surface_points(map, min_probability, mean_hit_positions));
 }
 
 MapSurface::~MapSurface() = default;
@@ -335,11 +345,8 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
 ScanMatcher::ScanMatcher(IMapperBackend& map, ScanMatcherOptions options) : map_(map), options_(std::move(options)) {
   options_.validate();
   if (options_.fine) {
-    const double threshold = options_.min_probability < 0.0 ? map.get_params().occupied_threshold : options_.min_probability;
-    const Eigen::MatrixXd v = options_.mean_hit_positions && map.get_hit_accumulation()
-                                  ? map.get_occupied_mean_positions(threshold)
-                                  : map.get_occupied_voxels(threshold);
-    if (v.rows() >= kNormalNeighbours) surface_ = std::make_shared<const MapSurface>(Eigen::MatrixXd(v.leftCols<3>()));
+    const Eigen::MatrixXd v = surface_points(map, options_.min_probability, options_.mean_hit_positions);
+    if (v.rows() >= kNormalNeighbours) surface_ = std::make_shared<const MapSurface>(v);
   }
 }
 

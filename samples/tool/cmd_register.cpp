@@ -89,14 +89,16 @@ int run_register(const std::vector<std::string>& argv) {
   for (std::size_t i = 0; i < scan.cloud->size(); ++i)
     points.row(static_cast<Eigen::Index>(i)) << (*scan.cloud)[i].x, (*scan.cloud)[i].y, (*scan.cloud)[i].z;
 
-  const auto map = load_map(*map_path, resolution);
-  // A cloud's own points are the ICP target (mean hit positions when 'iwlomap map --mean-positions'
-  // wrote them); a stored map's occupied voxels otherwise.
+  // A stored map's occupied voxels are the ICP target; a cloud's own points otherwise (mean hit
+  // positions when 'iwlomap map --mean-positions' wrote them), read once for both uses.
+  std::unique_ptr<IMapperBackend> map;
   std::optional<registration::ScanMatcher> matcher;
   if (is_map_path(*map_path)) {
+    map = open_map(*map_path);
     matcher.emplace(*map, options);
   } else {
     const LoadedCloud cloud = load_cloud(*map_path, 0.9f);
+    map = map_from_voxel_cloud(cloud, *map_path, resolution);
     Eigen::MatrixXd surface(static_cast<Eigen::Index>(cloud.cloud->size()), 3);
     for (std::size_t i = 0; i < cloud.cloud->size(); ++i)
       surface.row(static_cast<Eigen::Index>(i)) << (*cloud.cloud)[i].x, (*cloud.cloud)[i].y, (*cloud.cloud)[i].z;

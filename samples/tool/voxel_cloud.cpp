@@ -2,8 +2,6 @@
 #include "voxel_cloud.h"
 
 #include "args.h"
-#include "cloud_io.h"
-#include "map_open.h"
 
 #include <iwlomap/iwlo.h>
 #include <iwlomap/probability_updater.h>
@@ -55,10 +53,9 @@ bool on_voxel_lattice(const Eigen::MatrixXd& v, double resolution) {
   return all > 0 && static_cast<double>(on) >= 0.99 * static_cast<double>(all);
 }
 
-std::unique_ptr<IMapperBackend> load_map(const std::string& path, std::optional<double> resolution) {
-  if (is_map_path(path)) return open_map(path);
-  const LoadedCloud in = load_cloud(path, 0.9f);
-  const auto& c = *in.cloud;
+std::unique_ptr<IMapperBackend> map_from_voxel_cloud(const LoadedCloud& cloud, const std::string& path,
+                                                     std::optional<double> resolution) {
+  const auto& c = *cloud.cloud;
   Eigen::MatrixXd v(static_cast<Eigen::Index>(c.size()), 3);
   Eigen::VectorXd log_odds(static_cast<Eigen::Index>(c.size()));
   for (std::size_t i = 0; i < c.size(); ++i) {

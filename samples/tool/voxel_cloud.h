@@ -3,6 +3,8 @@
 
 // Clouds of voxel centres (what 'iwlomap map' writes): their voxel size, and a map made of them.
 
+#include "cloud_io.h"
+
 #include <iwlomap/mapper_backend.h>
 
 #include <Eigen/Core>
@@ -22,10 +24,10 @@ namespace iwlomap::tool {
 /// is a voxel cloud, not a raw scan whose smallest coordinate gap says nothing about a voxel size.
 [[nodiscard]] bool on_voxel_lattice(const Eigen::MatrixXd& v, double resolution);
 
-/// A map from a .pcd/.ply \p path of voxel centres or a stored map (tile directory, .bt, .ot):
-/// a cloud's voxels get the log-odds of their intensity when it is a probability in (0, 1) (p
-/// 0.9 otherwise), at \p resolution or the inferred voxel size. Throws UsageError when a cloud's
-/// voxel size cannot be told, std::runtime_error naming the path when it cannot be read.
-[[nodiscard]] std::unique_ptr<IMapperBackend> load_map(const std::string& path, std::optional<double> resolution);
+/// A map from \p cloud, voxel centres read from \p path: each voxel gets the log-odds of its
+/// point's intensity when that is a probability in (0, 1) (p 0.9 otherwise), at \p resolution
+/// or the inferred voxel size. Throws UsageError naming \p path when the voxel size cannot be told.
+[[nodiscard]] std::unique_ptr<IMapperBackend> map_from_voxel_cloud(const LoadedCloud& cloud, const std::string& path,
+                                                                   std::optional<double> resolution);
 
 }  // namespace iwlomap::tool
