@@ -154,6 +154,38 @@ TEST(ScanMatcher, ASinglePlaneIsReportedDegenerateWithItsFreeDirections) {
   EXPECT_TRUE(r.pose.isApprox(perturbed(s.truth, {0.3, 0.2, 0.05}, 0.02)));  // the initial pose, unchanged
 }
 
+// Planar ICP: x, y and yaw are estimated, z, roll and pitch stay exactly those of the initial
+// pose (here 4 cm too high and tilted by 0.5 degrees about x), and their covariance is 0.
+TEST(ScanMatcher, PlanarIcpHoldsHeightRollAndPitch) {
+  const Scene& s = pillar_scene();
+  Eigen::Isometry3d initial = perturbed(s.truth, {0.15, -0.1, 0.04}, 2.0 * kDeg);
+  initial.linear() = initial.linear() * Eigen::AngleAxisd(0.5 * kDeg, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  ScanMatcherOptions o;
+  o.coarse = false;
+  o.icp.planar = true;
+  const ScanMatchResult r = ScanMatcher(*s.map, o).match(s.scan_sensor, initial);
+  ASSERT_TRUE(r.converged) << r.reason;
+  EXPECT_NEAR(r.pose.translation().z(), initial.translation().z(), 1e-9);
+  // The turn from the initial pose to the result is about the map's z axis only.
+  const Eigen::Matrix3d turn = r.pose.linear() * initial.linear().transpose();
+  EXPECT_NEAR(turn(2, 2), 1.0, 1e-12);
+  EXPECT_NEAR((turn * Eigen::Vector3d::UnitZ() - Eigen::Vector3d::UnitZ()).norm(), 0.0, 1e-9);
+  EXPECT_LE((r.pose.translation() - s.truth.translation()).head<2>().norm(), 0.03);
+  const double yaw_error = std::atan2(turn(1, 0), turn(0, 0)) + 2.0 * kDeg;  // the turn undoes the 2 degrees
+  EXPECT_LE(std::abs(yaw_error), 0.3 * kDeg);
+  for (const int k : {2, 3, 4}) {
+    EXPECT_EQ(r.covariance.row(k).norm(), 0.0) << k;
+    EXPECT_EQ(r.covariance.col(k).norm(), 0.0) << k;
+  }
+  EXPECT_GT(r.covariance(0, 0), 0.0);
+  EXPECT_EQ(r.unobservable.cols(), 0);
+  // 6 DoF from the same guess moves the height back to the truth.
+  o.icp.planar = false;
+  const ScanMatchResult full = ScanMatcher(*s.map, o).match(s.scan_sensor, initial);
+  ASSERT_TRUE(full.converged) << full.reason;
+  EXPECT_LE(std::abs(full.pose.translation().z() - s.truth.translation().z()), 0.03);
+}
+
 TEST(ScanMatcher, AScanThatMissesTheMapIsNotConverged) {
   const Scene& s = courtyard();
   const Eigen::Isometry3d far = perturbed(s.truth, {500.0, 0.0, 0.0}, 0.0);

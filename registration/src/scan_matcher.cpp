@@ -5,6 +5,7 @@
 #include <flann/flann.hpp>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
@@ -255,8 +256,21 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
   const double length = std::max(std::sqrt(spread / static_cast<double>(n)), 1e-3);
   Vector6d scale;
   scale << 1.0, 1.0, 1.0, 1.0 / length, 1.0 / length, 1.0 / length;
+  // Planar: z, roll and pitch (indices 2, 3, 4) are held. Their rows and columns of the scaled
+  // system are cleared and their diagonal set to the largest free one, so each is an eigenvector
+  // of its own that is neither weak nor moved (its gradient entry is cleared too).
+  const std::array<int, 3> held = {2, 3, 4};
   const auto eigen_of = [&](const Matrix6d& h) {
-    return Eigen::SelfAdjointEigenSolver<Matrix6d>(scale.asDiagonal() * h * scale.asDiagonal());
+    Matrix6d hs = scale.asDiagonal() * h * scale.asDiagonal();
+    if (options.planar) {
+      const double top_free = std::max({hs(0, 0), hs(1, 1), hs(5, 5), 1e-12});
+      for (const int k : held) {
+        hs.row(k).setZero();
+        hs.col(k).setZero();
+        hs(k, k) = top_free;
+      }
+    }
+    return Eigen::SelfAdjointEigenSolver<Matrix6d>(hs);
   };
 
   ScanMatchResult result;
@@ -283,7 +297,9 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
     // Solve in the scaled coordinates, only along the directions the pairs constrain.
     const auto eig = eigen_of(sys.h);
     const double top = eig.eigenvalues().maxCoeff();
-    const Vector6d gs = scale.asDiagonal() * sys.g;
+    Vector6d gs = scale.asDiagonal() * sys.g;
+    if (options.planar)
+      for (const int k : held) gs[k] = 0.0;
     Vector6d step_scaled = Vector6d::Zero();
     for (int k = 0; k < 6; ++k)
       if (eig.eigenvalues()[k] > options.degeneracy_ratio * top)
@@ -317,6 +333,11 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
   }
   // Back to metres and radians: cov = S cov_scaled S; unobservable directions in the same units.
   result.covariance = scale.asDiagonal() * cov_scaled * scale.asDiagonal();
+  if (options.planar)
+    for (const int k : held) {
+      result.covariance.row(k).setZero();
+      result.covariance.col(k).setZero();
+    }
   result.unobservable.resize(6, static_cast<Eigen::Index>(weak.size()));
   for (std::size_t c = 0; c < weak.size(); ++c) {
     const Vector6d v = (scale.asDiagonal() * eig.eigenvectors().col(weak[c])).normalized();

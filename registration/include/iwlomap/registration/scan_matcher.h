@@ -40,6 +40,10 @@ struct IcpOptions {
   /// A direction of the 6-D pose is unobservable when its eigenvalue of the normalised Hessian is
   /// below this fraction of the largest one (a plane leaves three such directions).
   double degeneracy_ratio = 1e-3;
+  /// Estimate x, y and the rotation about the map's z axis only; z, roll and pitch stay those of
+  /// the initial pose (for vehicles whose depth and attitude sensors observe them, such as an
+  /// underwater vehicle's pressure sensor and inertial unit). Their covariance is then 0.
+  bool planar = false;
   /// Throws std::invalid_argument naming the first bad value.
   void validate() const;
 };
