@@ -131,6 +131,7 @@ class Rng {
   explicit Rng(std::uint32_t seed) : gen_(seed) {}
   double uniform() { return (static_cast<double>(gen_()) + 0.5) / 4294967296.0; }  // (0, 1)
   double uniform(double lo, double hi) { return lo + (hi - lo) * uniform(); }
+  double normal() { return std::sqrt(-2.0 * std::log(uniform())) * std::cos(2.0 * kPi * uniform()); }
   int integer(int lo, int hi) { return std::min(hi, lo + static_cast<int>(uniform() * (hi - lo + 1))); }
   double rayleigh(double scale) { return scale * std::sqrt(-2.0 * std::log(uniform())); }
   // Gamma(L, 1/L) for integer L: the mean of L unit exponentials.
@@ -176,9 +177,9 @@ SonarNoise heavy_noise() {
 
 SonarSimulation simulate_sonar_survey(const SonarSimOptions& o) {
   if (o.beams < 1 || o.range_bins < 1 || o.elevation_rays < 1 || !(o.range_resolution > 0.0) ||
-      !(o.ping_spacing > 0.0) || !(o.resolution > 0.0))
+      !(o.ping_spacing > 0.0) || !(o.resolution > 0.0) || !(o.drift >= 0.0))
     throw std::invalid_argument("sonar simulation: beams, range_bins, elevation_rays, range_resolution, "
-                                "ping_spacing and resolution must be > 0");
+                                "ping_spacing and resolution must be > 0, drift >= 0");
   SonarSimulation sim;
   SonarGeometry& g = sim.geometry;
   const double fov = o.horizontal_fov_deg * kPi / 180.0;
@@ -200,6 +201,13 @@ SonarSimulation simulate_sonar_survey(const SonarSimOptions& o) {
   const Eigen::Matrix3d pitch(Eigen::AngleAxisd(-o.pitch_deg * kPi / 180.0, Eigen::Vector3d::UnitY()));
 
   Rng rng(o.seed);
+  // The drift has its own generator, so a survey with drift has the same images as without.
+  Rng nav_rng(o.seed ^ 0x9e3779b9u);
+  const double start_direction = nav_rng.uniform(0.0, 2.0 * kPi);
+  Eigen::Vector2d velocity_error = o.drift * Eigen::Vector2d(std::cos(start_direction), std::sin(start_direction));
+  Eigen::Vector2d position_error = Eigen::Vector2d::Zero();
+  double heading_error = 0.0;
+  Eigen::Vector3d last_position = Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
   const SonarNoise& noise = o.noise;
   const double max_range = g.max_range;
   Eigen::MatrixXf echo(o.range_bins, o.beams), ghost(o.range_bins, o.beams);
@@ -216,6 +224,17 @@ SonarSimulation simulate_sonar_survey(const SonarSimOptions& o) {
       ping.pose.linear() = rot;
       ping.pose.translation() = Eigen::Vector3d(x, o.leg_y[leg], kFloorZ + o.altitude);
       const Eigen::Vector3d origin = ping.pose.translation();
+      if (o.drift > 0.0 && last_position.allFinite()) {
+        const double travelled = (origin - last_position).norm();
+        const double root = std::sqrt(travelled);
+        velocity_error += o.drift / std::sqrt(50.0) * root * Eigen::Vector2d(nav_rng.normal(), nav_rng.normal());
+        position_error += travelled * velocity_error;
+        heading_error += 5.0 * kPi / 180.0 * o.drift * root * nav_rng.normal();
+      }
+      last_position = origin;
+      ping.nav_pose = ping.pose;
+      ping.nav_pose.linear() = Eigen::AngleAxisd(heading_error, Eigen::Vector3d::UnitZ()).toRotationMatrix() * rot;
+      ping.nav_pose.translation().head<2>() += position_error;
 
       echo.setZero();
       ghost.setZero();
