@@ -39,14 +39,29 @@
 // --ablation: heavy noise only: IWLO with one ingredient removed at a time, and plain log-odds
 //             with other increments or threshold, to show where the differences come from.
 // --dump PREFIX: writes the truth sets and every method's occupied voxels as x y z text files.
+// --drift F:  instead of the tables above, the survey with navigation drift (F of the distance
+//             travelled, see sonar_sim.h) mapped by IWLO (defaults) three ways: at the true poses,
+//             at the drifted navigation poses, and at the navigation poses corrected by
+//             registration (RegisteredSonarMapper, submaps of --submap-pings pings, default 80)
+//             against the map it builds; and, as a repeat survey, registered against the map of an
+//             earlier survey of the site (seed + 1000, true poses) and mapped alone at the poses
+//             found. With the pose errors before and after registration. Needs the registration
+//             layer.
+//             Variants of the registration: --coarse (branch and bound before ICP), --six-dof
+//             (ICP in 6 DoF instead of x, y, yaw), --no-rmse-limit (accept any converged fit);
+//             --submaps prints each submap's registration to standard error.
 //
 // Usage: bench_sonar_accuracy [--resolution R] [--ping-spacing S] [--band M] [--seed N] [--quick]
 //                             [--ablation] [--dump PREFIX]
+//                             [--drift F [--submap-pings K] [--coarse] [--six-dof] [--no-rmse-limit] [--submaps]]
 
 #include "sonar_sim.h"
 
 #include <iwlomap/probability_updater.h>
 #include <iwlomap/sonar_image_projector.h>
+#ifdef IWLOMAP_BENCH_REGISTRATION
+#include <iwlomap/registration/registered_sonar_mapper.h>
+#endif
 
 #include <algorithm>
 #include <chrono>
@@ -259,13 +274,16 @@ struct Options {
   double band = 0.0;
   std::uint32_t seed = 1;
   bool ablation = false;
+  double drift = -1.0;    // < 0: no drift comparison
+  int submap_pings = 80;
+  bool coarse = false, six_dof = false, no_rmse_limit = false, submaps = false;  // --drift variants
   std::string dump;  // prefix of x y z text files of the truth and of every method's voxels
 };
 
 [[noreturn]] void usage(const std::string& problem) {
   std::fprintf(stderr,
                "bench_sonar_accuracy: %s\nusage: bench_sonar_accuracy [--resolution R] [--ping-spacing S] "
-               "[--band M] [--seed N] [--quick] [--ablation] [--dump PREFIX]\n",
+               "[--band M] [--seed N] [--quick] [--ablation] [--dump PREFIX] [--drift F [--submap-pings K] [--coarse] [--six-dof] [--no-rmse-limit] [--submaps]]\n",
                problem.c_str());
   std::exit(2);
 }
@@ -287,12 +305,20 @@ Options parse(int argc, char** argv) {
     else if (a == "--seed") o.seed = static_cast<std::uint32_t>(value());
     else if (a == "--quick") o.ping_spacing = 0.4;
     else if (a == "--ablation") o.ablation = true;
+    else if (a == "--drift") o.drift = value();
+    else if (a == "--submap-pings") o.submap_pings = static_cast<int>(value());
+    else if (a == "--coarse") o.coarse = true;
+    else if (a == "--six-dof") o.six_dof = true;
+    else if (a == "--no-rmse-limit") o.no_rmse_limit = true;
+    else if (a == "--submaps") o.submaps = true;
     else if (a == "--dump") {
       if (i + 1 >= argc) usage("--dump needs a prefix");
       o.dump = argv[++i];
     } else usage("unknown option " + a);
   }
-  if (!(o.resolution > 0.0) || !(o.ping_spacing > 0.0) || !(o.band >= 0.0)) usage("values must be > 0 (band >= 0)");
+  if (!(o.resolution > 0.0) || !(o.ping_spacing > 0.0) || !(o.band >= 0.0) || o.submap_pings < 1)
+    usage("values must be > 0 (band >= 0)");
+  if (o.drift >= 0.0 && o.ablation) usage("--drift and --ablation are separate runs");
   return o;
 }
 
@@ -354,6 +380,182 @@ std::vector<Method> methods(bool ablation) {
   return out;
 }
 
+// Position (m) and rotation (degrees) between two poses.
+std::pair<double, double> pose_error(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
+  const Eigen::AngleAxisd turn(a.linear().transpose() * b.linear());
+  return {(a.translation() - b.translation()).norm(), std::abs(turn.angle()) * 180.0 / 3.14159265358979323846};
+}
+
+struct ErrorStats {
+  double rms = 0.0, max = 0.0, rms_angle = 0.0, max_angle = 0.0;
+  void add(const std::pair<double, double>& e) {
+    rms += e.first * e.first;
+    max = std::max(max, e.first);
+    rms_angle += e.second * e.second;
+    max_angle = std::max(max_angle, e.second);
+    ++n;
+  }
+  [[nodiscard]] std::string text() const {
+    char out[160];
+    std::snprintf(out, sizeof out, "RMS %.3f m / %.2f deg, max %.3f m / %.2f deg", std::sqrt(rms / std::max<std::size_t>(1, n)),
+                  std::sqrt(rms_angle / std::max<std::size_t>(1, n)), max, max_angle);
+    return out;
+  }
+  std::size_t n = 0;
+};
+
+#ifdef IWLOMAP_BENCH_REGISTRATION
+// The drifted survey mapped at the true poses, at the navigation poses, and at the navigation
+// poses corrected by registration; IWLO defaults for all three.
+int run_drift(const Options& opt, const iwlomap::SonarImageProjector& projector,
+              const std::vector<double>& probability_sweep) {
+  using namespace iwlomap;
+  IwloParams iwlo;
+  iwlo.intensity_threshold = kEchoThreshold;
+  std::vector<std::string> rows[2], notes;
+  for (const bench::SonarNoise& noise : {bench::light_noise(), bench::heavy_noise()}) {
+    bench::SonarSimOptions so;
+    so.noise = noise;
+    so.resolution = opt.resolution;
+    so.ping_spacing = opt.ping_spacing;
+    so.truth_band = std::max(opt.band, 0.5 * opt.resolution);
+    so.echo_threshold = kEchoThreshold;
+    so.seed = opt.seed;
+    so.drift = opt.drift;
+    const bench::SonarSimulation sim = bench::simulate_sonar_survey(so);
+
+    ProbabilityUpdater truth_map(opt.resolution), drifted_map(opt.resolution);
+    truth_map.set_params(iwlo);
+    drifted_map.set_params(iwlo);
+    auto registered_map = std::make_shared<ProbabilityUpdater>(opt.resolution);
+    registered_map->set_params(iwlo);
+    registration::RegisteredSonarMapperOptions ro;
+    ro.pings_per_submap = opt.submap_pings;
+    ro.matcher.coarse = ro.matcher.coarse || opt.coarse;
+    ro.matcher.icp.planar = ro.matcher.icp.planar && !opt.six_dof;
+    if (opt.no_rmse_limit) ro.max_fitness_rmse = 0.0;
+    registration::RegisteredSonarMapper mapper(registered_map, projector, ExecutionMode::kSequential, ro);
+    double register_seconds = 0.0;
+    ErrorStats nav_error;
+    for (const bench::SimulatedPing& ping : sim.pings) {
+      const SonarImageView view = make_sonar_image_view(ping.image);
+      static_cast<void>(projector.integrate(truth_map, view, sim.geometry, ping.pose));
+      static_cast<void>(projector.integrate(drifted_map, view, sim.geometry, ping.nav_pose));
+      const auto t0 = std::chrono::steady_clock::now();
+      mapper.integrate(ping.nav_pose, view, sim.geometry);
+      register_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      nav_error.add(pose_error(ping.pose, ping.nav_pose));
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    const std::vector<registration::RegisteredSubmap> submaps = mapper.sync();
+    register_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    // A repeat survey: the map of an earlier survey of the site (other noise draws, true poses) is
+    // the chart; the drifted survey registers against it, and its own pings are mapped alone at
+    // the poses found.
+    bench::SonarSimOptions earlier_options = so;
+    earlier_options.seed = so.seed + 1000;
+    earlier_options.drift = 0.0;
+    const bench::SonarSimulation earlier = bench::simulate_sonar_survey(earlier_options);
+    auto chart = std::make_shared<ProbabilityUpdater>(opt.resolution);
+    chart->set_params(iwlo);
+    for (const bench::SimulatedPing& ping : earlier.pings)
+      static_cast<void>(projector.integrate(*chart, make_sonar_image_view(ping.image), earlier.geometry, ping.pose));
+    registration::RegisteredSonarMapper chart_mapper(chart, projector, ExecutionMode::kSequential, ro);
+    for (const bench::SimulatedPing& ping : sim.pings)
+      chart_mapper.integrate(ping.nav_pose, make_sonar_image_view(ping.image), sim.geometry);
+    const std::vector<registration::RegisteredSubmap> chart_submaps = chart_mapper.sync();
+    ProbabilityUpdater repeat_map(opt.resolution);
+    repeat_map.set_params(iwlo);
+    ErrorStats chart_error;
+    std::size_t chart_registered = 0;
+    {
+      std::size_t ping = 0;
+      for (const registration::RegisteredSubmap& submap : chart_submaps) {
+        chart_registered += submap.registered ? 1 : 0;
+        for (const Eigen::Isometry3d& pose : submap.integrated_poses) {
+          const bench::SimulatedPing& p = sim.pings[ping++];
+          chart_error.add(pose_error(p.pose, pose));
+          static_cast<void>(projector.integrate(repeat_map, make_sonar_image_view(p.image), sim.geometry, pose));
+        }
+      }
+    }
+
+    ErrorStats corrected_error;
+    std::size_t registered = 0, ping = 0;
+    for (const registration::RegisteredSubmap& submap : submaps) {
+      registered += submap.registered ? 1 : 0;
+      if (opt.submaps) {
+        const auto guess = pose_error(sim.pings[submap.first_ping].pose, submap.initial_guess);
+        const auto found = pose_error(sim.pings[submap.first_ping].pose, submap.correction * submap.given_pose);
+        std::fprintf(stderr,
+                     "%s submap at ping %zu: %zu voxels, registered %d, score %.3f, rmse %.3f m, %d iterations; "
+                     "guess off by %.3f m / %.2f deg, result %.3f m / %.2f deg%s%s\n",
+                     noise.name.c_str(), submap.first_ping, submap.occupied_voxels, submap.registered ? 1 : 0,
+                     submap.match.score, submap.match.fitness_rmse, submap.match.iterations, guess.first, guess.second,
+                     found.first, found.second, submap.match.reason.empty() ? "" : "; ", submap.match.reason.c_str());
+      }
+      for (const Eigen::Isometry3d& pose : submap.integrated_poses)
+        corrected_error.add(pose_error(sim.pings[ping++].pose, pose));
+    }
+
+    const auto corridor = [&](const VoxelKey& k) {
+      const Eigen::Vector3d c = key_to_center(k, opt.resolution);
+      return c.x() >= so.leg_start_x && c.x() <= so.leg_end_x && std::abs(c.y()) <= kCorridorHalfWidth;
+    };
+    const KeySet truth_inside = restrict_to(sim.footprint_truth, corridor);
+    const KeySet visible_inside = restrict_to(sim.visible_truth, corridor);
+    const std::pair<const char*, const IMapperBackend*> maps[] = {
+        {"true poses", &truth_map},
+        {"drifted navigation", &drifted_map},
+        {"drifted, registered", registered_map.get()},
+        {"drifted, registered against an earlier survey's map", &repeat_map}};
+    double f1s[2][4] = {};
+    for (int m = 0; m < 4; ++m) {
+      const ScoredVoxels voxels = probabilities(*maps[m].second);
+      if (!opt.dump.empty())
+        dump(opt.dump + noise.name + "_drift" + std::to_string(m) + ".xyz", above(voxels, iwlo.occupied_threshold),
+             opt.resolution);
+      for (int region = 0; region < 2; ++region) {
+        const Score s = region == 0 ? score(voxels, iwlo.occupied_threshold, probability_sweep, sim.footprint_truth,
+                                            sim.visible_truth, opt.resolution)
+                                    : score(restrict_to(voxels, corridor), iwlo.occupied_threshold, probability_sweep,
+                                            truth_inside, visible_inside, opt.resolution);
+        f1s[region][m] = s.f1;
+        char row[512];
+        std::snprintf(row, sizeof row, "| %s | IWLO (defaults), %s | %zu | %.3f | %.3f | **%.3f** | %.3f | %.3f | %.3f (%g) |",
+                      noise.name.c_str(), maps[m].first, s.occupied, s.precision, s.recall, s.f1, s.f1_exact,
+                      s.chamfer, s.best_f1, s.best_threshold);
+        rows[region].emplace_back(row);
+      }
+    }
+    const auto recovered = [&](int region, int m) {
+      const double lost = f1s[region][0] - f1s[region][1];
+      return lost > 0.0 ? 100.0 * (f1s[region][m] - f1s[region][1]) / lost : 0.0;
+    };
+    char line[1024];
+    std::snprintf(line, sizeof line,
+                  "%s noise: %zu pings; navigation error %s, final %.3f m. Registered against its own map: %zu of "
+                  "%zu submaps, pose error %s, recovering %.0f %% (all voxels) and %.0f %% (corridor) of the F1 "
+                  "lost to drift, %.1f s. Registered against the earlier survey's map: %zu of %zu submaps, pose "
+                  "error %s, recovering %.0f %% and %.0f %%",
+                  noise.name.c_str(), sim.pings.size(), nav_error.text().c_str(),
+                  (sim.pings.back().pose.translation() - sim.pings.back().nav_pose.translation()).norm(), registered,
+                  submaps.size(), corrected_error.text().c_str(), recovered(0, 2), recovered(1, 2), register_seconds,
+                  chart_registered, chart_submaps.size(), chart_error.text().c_str(), recovered(0, 3), recovered(1, 3));
+    notes.emplace_back(line);
+  }
+  for (int region = 0; region < 2; ++region) {
+    std::printf(region == 0 ? "All voxels:\n\n" : "\nInside the survey corridor:\n\n");
+    std::printf("| noise | map | occupied | precision | recall | F1 | F1 exact | Chamfer (m) | best F1 (at) |\n");
+    std::printf("|---|---|---:|---:|---:|---:|---:|---:|---:|\n");
+    for (const std::string& row : rows[region]) std::printf("%s\n", row.c_str());
+  }
+  std::printf("\n");
+  for (const std::string& n : notes) std::printf("- %s\n", n.c_str());
+  return 0;
+}
+#endif
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -372,6 +574,15 @@ int main(int argc, char** argv) {
 
   std::printf("# bench_sonar_accuracy: resolution %.3f m, ping spacing %.3f m, occupied band %.3f m, seed %u%s\n\n",
               opt.resolution, opt.ping_spacing, opt.band, opt.seed, opt.ablation ? ", ablation" : "");
+  if (opt.drift >= 0.0) {
+#ifdef IWLOMAP_BENCH_REGISTRATION
+    std::printf("Navigation drift %.3f of the distance travelled, registration with submaps of %d pings\n\n", opt.drift,
+                opt.submap_pings);
+    return run_drift(opt, projector, probability_sweep);
+#else
+    usage("--drift needs the registration layer (IWLOMAP_WITH_REGISTRATION)");
+#endif
+  }
   std::vector<std::string> notes, rows[2];
   std::vector<bench::SonarNoise> levels = {bench::light_noise(), bench::heavy_noise()};
   if (opt.ablation) levels.erase(levels.begin());
