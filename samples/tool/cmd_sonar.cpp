@@ -13,8 +13,13 @@
 #include <iwlomap/oculus_reader.h>
 #include <iwlomap/sonar_image_projector.h>
 
+#ifdef IWLOMAP_HAVE_REGISTRATION
+#include <iwlomap/registration/registered_sonar_mapper.h>
+#endif
+
 #include <Eigen/Geometry>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <fstream>
@@ -63,6 +68,18 @@ sonar:
                             no evidence
   --intensity-threshold I is both the echo threshold of the projection and the map's threshold.
   --no-rays does not apply: a sonar ping is always projected as above.
+
+registration (corrects drifting navigation poses against the map):
+  --register                gather the pings into submaps (built at their --poses), register each
+                            against the map so far (x, y and yaw by point-to-plane ICP; depth,
+                            roll and pitch as given) and integrate its pings at the corrected
+                            poses. It works best against a map of an earlier survey: continue one
+                            with --backend disk --tiles DIR. Against the map a survey builds
+                            itself it rarely finds a fit it can trust (docs/accuracy.md), and
+                            then keeps the poses as given.
+  --submap-pings K          pings per submap (default 80; aim at about 8 m of travel)
+  --write-poses FILE.txt    the pose each ping was integrated at, one per line, as
+                            x y z qw qx qy qz (a --poses format)
 )";
 
 // One pose per non-empty line; see kHelp for the three accepted forms.
@@ -120,10 +137,10 @@ std::vector<Eigen::Isometry3d> read_poses(const std::string& path) {
 int run_sonar(const std::vector<std::string>& argv) {
   auto value_opts = map_value_options();
   value_opts.insert({"-o", "--output", "--octomap", "--snapshot", "--poses", "--aperture", "--min-range", "--stride", "--elevation-spacing",
-                     "--band", "--no-return"});
+                     "--band", "--no-return", "--submap-pings", "--write-poses"});
   auto flag_opts = map_flag_options();
   flag_opts.erase("--no-rays");
-  flag_opts.insert({"-h", "--help", "-q", "--quiet"});
+  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--register"});
   const Args args(argv, value_opts, flag_opts);
   if (args.flag("-h") || args.flag("--help")) {
     std::cout << kHelp << map_outputs_help() << map_options_help(/*rays=*/false);
@@ -137,6 +154,15 @@ int run_sonar(const std::vector<std::string>& argv) {
   files.add("-o", *output, {".pcd", ".ply"});
   const MapOutputs extra = map_outputs_from(args, files);
   const bool quiet = args.flag("-q") || args.flag("--quiet");
+  const auto poses_out = args.value("--write-poses");
+  if (poses_out) files.add("--write-poses", *poses_out, {".txt"});
+  const bool register_pings = args.flag("--register");
+  const long submap_pings = args.integer("--submap-pings", 80);
+  if (submap_pings < 1) throw UsageError("--submap-pings must be >= 1, got " + std::to_string(submap_pings));
+  if (args.value("--submap-pings") && !register_pings) throw UsageError("--submap-pings needs --register");
+#ifndef IWLOMAP_HAVE_REGISTRATION
+  if (register_pings) throw std::runtime_error("--register: this build has no registration layer (IWLOMAP_WITH_REGISTRATION)");
+#endif
 
   const MapSetup setup = map_setup_from(args);
   SonarProjectorParams params;
@@ -178,18 +204,69 @@ int run_sonar(const std::vector<std::string>& argv) {
   }
 
   std::size_t observations = 0, with_return = 0, beams = 0;
+  std::vector<Eigen::Isometry3d> integrated = poses;  // where each ping went into the map
+  std::string registration_summary;
   {
     Progress progress("mapping", pings.size(), !quiet);
+#ifdef IWLOMAP_HAVE_REGISTRATION
+    std::optional<registration::RegisteredSonarMapper> registered;
+    if (register_pings) {
+      registration::RegisteredSonarMapperOptions ro;
+      ro.pings_per_submap = static_cast<int>(std::min<long>(submap_pings, 1L << 30));
+      registered.emplace(setup.map, *projector, ExecutionMode::kSequential, ro);
+    }
+#endif
     for (std::size_t i = 0; i < pings.size(); ++i) {
       const OculusPing& ping = pings[i];
       SonarGeometry geometry = ping.geometry(aperture_deg * kPi / 180.0, min_range);
       if (max_range) geometry.max_range = *max_range;
+#ifdef IWLOMAP_HAVE_REGISTRATION
+      if (registered) {
+        registered->integrate(poses[i], ping.image_view(), geometry);
+        progress.update(i + 1, "ping " + std::to_string(ping.ping_id));
+        continue;
+      }
+#endif
       const SonarObservations obs = projector->integrate(*setup.map, ping.image_view(), geometry, poses[i]);
       observations += obs.size();
       with_return += obs.beams_with_return;
       beams += obs.beams_with_return + obs.beams_without_return;
       progress.update(i + 1, "ping " + std::to_string(ping.ping_id));
     }
+#ifdef IWLOMAP_HAVE_REGISTRATION
+    if (registered) {
+      std::size_t count = 0, accepted = 0;
+      for (const registration::RegisteredSubmap& submap : registered->sync()) {
+        ++count;
+        accepted += submap.registered ? 1 : 0;
+        for (std::size_t k = 0; k < submap.pings; ++k) integrated[submap.first_ping + k] = submap.integrated_poses[k];
+      }
+      // The projection counts of the pings at the poses they were integrated at.
+      for (std::size_t i = 0; i < pings.size(); ++i) {
+        SonarGeometry geometry = pings[i].geometry(aperture_deg * kPi / 180.0, min_range);
+        if (max_range) geometry.max_range = *max_range;
+        const SonarObservations obs = projector->project(pings[i].image_view(), geometry, integrated[i]);
+        observations += obs.size();
+        with_return += obs.beams_with_return;
+        beams += obs.beams_with_return + obs.beams_without_return;
+      }
+      registration_summary = "registered " + std::to_string(accepted) + " of " + std::to_string(count) + " submap(s)" +
+                             (accepted < count ? "; the others kept the last correction" : "");
+    }
+#endif
+  }
+  if (poses_out) {
+    files.write(*poses_out, [&](const std::string& file) {
+      std::ofstream out(file);
+      out.precision(17);
+      out << "# x y z qw qx qy qz: the sonar pose (sonar frame to map frame) each ping was integrated at\n";
+      for (const Eigen::Isometry3d& pose : integrated) {
+        const Eigen::Quaterniond q(pose.linear());
+        out << pose.translation().x() << ' ' << pose.translation().y() << ' ' << pose.translation().z() << ' '
+            << q.w() << ' ' << q.x() << ' ' << q.y() << ' ' << q.z() << '\n';
+      }
+      if (!out.flush()) throw std::runtime_error("cannot write " + file);
+    });
   }
   pcl::PointCloud<pcl::PointXYZI> occupied;
   occupied_to_cloud(*setup.map, setup.params.occupied_threshold, occupied);
@@ -203,6 +280,7 @@ int run_sonar(const std::vector<std::string>& argv) {
               << setup.map->get_resolution() << " m, " << setup.map->get_backend_type()
               << " backend: " << setup.map->get_num_nodes() << " known voxels, " << occupied.size()
               << " occupied (p > " << setup.params.occupied_threshold << ") in " << seconds << " s\n";
+    if (!registration_summary.empty()) std::cout << registration_summary << "\n";
     for (const std::string& written : files.paths()) std::cout << "wrote " << written << "\n";
   }
   return 0;

@@ -48,6 +48,7 @@ expect map_help_lists_every_option bash -c "for o in --tile-size --cache-tiles -
 check help_sonar 0 "$TOOL" sonar --help
 expect sonar_help_max_range_once test "$(grep -c -- '--max-range' "$WORK/help_sonar.out")" = 1
 expect sonar_help_no_rays_not_offered bash -c "! grep -Eq -- '^  --no-rays {2,}' '$WORK/help_sonar.out'"
+expect sonar_help_register bash -c "grep -q -- '--register' '$WORK/help_sonar.out' && grep -q -- '--write-poses' '$WORK/help_sonar.out'"
 expect sonar_help_outputs bash -c "grep -q -- '--octomap' '$WORK/help_sonar.out' && grep -q -- '--snapshot' '$WORK/help_sonar.out'"
 
 check generate 0 "$TOOL" generate -o "$WORK/scan.pcd" --rings 16 --columns 256

@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# SPDX-License-Identifier: BSD-3-Clause
+# `iwlomap sonar --register` end to end: a first simulated survey is mapped at its true poses into
+# a Disk map; a second survey of the same site, whose navigation drifts 1 % of the distance, is
+# registered against that map. The poses it writes must end much closer to the truth than the
+# navigation's.
+# usage: test_sonar_register.sh IWLOMAP_BINARY MAKE_SONAR_SURVEY_BINARY WORK_DIR
+set -eu
+TOOL=$1
+MAKE=$2
+WORK=$3
+rm -rf "$WORK" && mkdir -p "$WORK"
+"$MAKE" "$WORK"
+"$TOOL" sonar "$WORK/earlier.raw" --poses "$WORK/earlier_truth.txt" --resolution 0.1 --intensity-threshold 35 \
+  --backend disk --tiles "$WORK/chart" -o "$WORK/earlier.pcd" -q
+"$TOOL" sonar "$WORK/survey.raw" --poses "$WORK/survey_nav.txt" --resolution 0.1 --intensity-threshold 35 \
+  --backend disk --tiles "$WORK/chart" --register --submap-pings 20 --write-poses "$WORK/registered.txt" \
+  -o "$WORK/survey.pcd" | tee "$WORK/register.out"
+grep -q "registered [0-9]* of 9 submap(s)" "$WORK/register.out"
+# Mean position error of the poses of file $1 against the truth.
+mean_error() {
+  paste -d' ' <(grep -v '^#' "$1") "$WORK/survey_truth.txt" |
+    awk '{ e += sqrt(($1 - $8) ^ 2 + ($2 - $9) ^ 2 + ($3 - $10) ^ 2); n++ } END { printf "%.4f\n", e / n }'
+}
+nav=$(mean_error "$WORK/survey_nav.txt")
+registered=$(mean_error "$WORK/registered.txt")
+echo "mean position error: navigation $nav m, registered $registered m"
+test "$(wc -l < "$WORK/survey_truth.txt")" = "$(grep -vc '^#' "$WORK/registered.txt")"
+awk -v n="$nav" -v r="$registered" 'BEGIN { exit !(n > 0.3 && r < 0.25 * n) }'
+# Without --register the written poses are the navigation's.
+"$TOOL" sonar "$WORK/survey.raw" --poses "$WORK/survey_nav.txt" --resolution 0.1 --write-poses "$WORK/as_given.txt" \
+  -o "$WORK/as_given.pcd" -q
+awk -v n="$nav" -v g="$(mean_error "$WORK/as_given.txt")" 'BEGIN { d = n - g; exit !(d < 1e-6 && d > -1e-6) }'
+# Bad values.
+if "$TOOL" sonar "$WORK/survey.raw" -o "$WORK/x.pcd" --register --submap-pings 0 2> "$WORK/bad.err"; then exit 1; fi
+grep -q "submap-pings must be >= 1" "$WORK/bad.err"
+if "$TOOL" sonar "$WORK/survey.raw" -o "$WORK/x.pcd" --submap-pings 5 2> "$WORK/bad.err"; then exit 1; fi
+grep -q "needs --register" "$WORK/bad.err"
+echo "sonar --register: passed"
