@@ -403,6 +403,7 @@ class IcpOptions:
     rotation_tolerance: float
     min_inlier_fraction: float
     degeneracy_ratio: float
+    planar: bool
     def __init__(self) -> None: ...
     def validate(self) -> None: ...
 
@@ -451,6 +452,31 @@ class RegisteredMapper:
                  max_range: float = -1.0, queue_capacity: int = 4) -> None: ...
     def integrate(self, pose: Pose, points_sensor: Points, intensities: Values) -> None: ...
     def sync(self) -> list[RegisteredScan]: ...
+    def correction(self) -> npt.NDArray[np.float64]: ...
+
+class RegisteredSonarMapperOptions:
+    matcher: ScanMatcherOptions
+    pings_per_submap: int
+    min_submap_voxels: int
+    max_fitness_rmse: float
+    def __init__(self) -> None: ...
+
+class RegisteredSubmap:
+    first_ping: int
+    pings: int
+    occupied_voxels: int
+    given_pose: npt.NDArray[np.float64]
+    initial_guess: npt.NDArray[np.float64]
+    correction: npt.NDArray[np.float64]
+    registered: bool
+    match: ScanMatchResult
+    integrated_poses: list[npt.NDArray[np.float64]]
+
+class RegisteredSonarMapper:
+    def __init__(self, map: IMapperBackend, projector: SonarImageProjector, mode: ExecutionMode = ...,
+                 options: RegisteredSonarMapperOptions = ..., queue_capacity: int = 2) -> None: ...
+    def integrate(self, nav_pose: Pose, image: npt.ArrayLike, geometry: SonarGeometry) -> None: ...
+    def sync(self) -> list[RegisteredSubmap]: ...
     def correction(self) -> npt.NDArray[np.float64]: ...
 
 class PcdCloud:

@@ -8,6 +8,7 @@
 #include <iwlomap/correlative_scan_matcher.h>
 #ifdef IWLOMAP_PYTHON_REGISTRATION
 #include <iwlomap/registration/registered_mapper.h>
+#include <iwlomap/registration/registered_sonar_mapper.h>
 #include <iwlomap/registration/scan_matcher.h>
 #endif
 
@@ -90,6 +91,7 @@ void bind_registration(py::module_& m) {
       .def_readwrite("rotation_tolerance", &r::IcpOptions::rotation_tolerance)
       .def_readwrite("min_inlier_fraction", &r::IcpOptions::min_inlier_fraction)
       .def_readwrite("degeneracy_ratio", &r::IcpOptions::degeneracy_ratio)
+      .def_readwrite("planar", &r::IcpOptions::planar, "x, y and yaw only; z, roll, pitch held at the initial pose")
       .def("validate", &r::IcpOptions::validate);
   py::class_<r::ScanMatcherOptions>(m, "ScanMatcherOptions", "Both stages' settings.")
       .def(py::init<>())
@@ -166,6 +168,62 @@ void bind_registration(py::module_& m) {
           py::arg("pose"), py::arg("points_sensor"), py::arg("intensities"))
       .def("sync", &r::RegisteredMapper::sync, py::call_guard<py::gil_scoped_release>())
       .def("correction", [](r::RegisteredMapper& rm) {
+        Eigen::Isometry3d c;
+        {
+          py::gil_scoped_release release;
+          c = rm.correction();
+        }
+        return pose_to_numpy(c);
+      });
+  py::class_<r::RegisteredSonarMapperOptions>(m, "RegisteredSonarMapperOptions",
+                                              "Sonar registration by submaps (see RegisteredSonarMapper).")
+      .def(py::init<>())
+      .def_readwrite("matcher", &r::RegisteredSonarMapperOptions::matcher,
+                     "ScanMatcherOptions; by default no coarse stage and planar ICP")
+      .def_readwrite("pings_per_submap", &r::RegisteredSonarMapperOptions::pings_per_submap)
+      .def_readwrite("min_submap_voxels", &r::RegisteredSonarMapperOptions::min_submap_voxels)
+      .def_readwrite("max_fitness_rmse", &r::RegisteredSonarMapperOptions::max_fitness_rmse,
+                     "metres; negative: 1.2 voxels; 0: no limit");
+  py::class_<r::RegisteredSubmap>(m, "RegisteredSubmap")
+      .def_readonly("first_ping", &r::RegisteredSubmap::first_ping)
+      .def_readonly("pings", &r::RegisteredSubmap::pings)
+      .def_readonly("occupied_voxels", &r::RegisteredSubmap::occupied_voxels)
+      .def_property_readonly("given_pose", [](const r::RegisteredSubmap& x) { return pose_to_numpy(x.given_pose); })
+      .def_property_readonly("initial_guess", [](const r::RegisteredSubmap& x) { return pose_to_numpy(x.initial_guess); })
+      .def_property_readonly("correction", [](const r::RegisteredSubmap& x) { return pose_to_numpy(x.correction); })
+      .def_readonly("registered", &r::RegisteredSubmap::registered)
+      .def_readonly("match", &r::RegisteredSubmap::match)
+      .def_property_readonly(
+          "integrated_poses",
+          [](const r::RegisteredSubmap& x) {
+            py::list out;
+            for (const Eigen::Isometry3d& p : x.integrated_poses) out.append(pose_to_numpy(p));
+            return out;
+          },
+          "per ping, (4, 4) sonar to map: where it went into the map");
+  py::class_<r::RegisteredSonarMapper>(
+      m, "RegisteredSonarMapper",
+      "Sonar mapping with registration: pings gathered into submaps, each registered against the map.")
+      .def(py::init([](std::shared_ptr<IMapperBackend> map, const SonarImageProjector& projector, ExecutionMode mode,
+                       const r::RegisteredSonarMapperOptions& o, std::size_t capacity) {
+             return std::make_unique<r::RegisteredSonarMapper>(std::move(map), projector, mode, o, capacity);
+           }),
+           py::arg("map"), py::arg("projector"), py::arg("mode") = ExecutionMode::kSequential,
+           py::arg("options") = r::RegisteredSonarMapperOptions{}, py::arg("queue_capacity") = 2)
+      .def(
+          "integrate",
+          [](r::RegisteredSonarMapper& rm, const py::handle& nav_pose, const py::handle& image,
+             const SonarGeometry& geometry) {
+            const Eigen::Isometry3d t = pose_from(nav_pose, "nav_pose");
+            const py::array a = as_array(image, "image");
+            const SonarImageView view = image_view_of(a);
+            py::gil_scoped_release release;
+            rm.integrate(t, view, geometry);  // copies the image
+          },
+          py::arg("nav_pose"), py::arg("image"), py::arg("geometry"),
+          "Adds a ping: image (range_bins, beams) taken at nav_pose (4, 4), sonar to map frame.")
+      .def("sync", &r::RegisteredSonarMapper::sync, py::call_guard<py::gil_scoped_release>())
+      .def("correction", [](r::RegisteredSonarMapper& rm) {
         Eigen::Isometry3d c;
         {
           py::gil_scoped_release release;

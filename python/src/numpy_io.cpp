@@ -170,4 +170,32 @@ py::array_t<bool> to_numpy(const std::vector<bool>& flags) {
   return out;
 }
 
+// A 2-D image array (range bins x beams; uint8, uint16, float32 or float64; any strides) as a view
+// of its own buffer: the array must outlive the view, so the caller keeps it.
+SonarImageView image_view_of(const py::array& a) {
+  if (a.ndim() != 2) throw py::value_error("image: expected shape (range_bins, beams), got " + shape_text(a));
+  SonarImageView v;
+  const char k = a.dtype().kind();
+  const auto size = a.itemsize();
+  if (k == 'u' && size == 1)
+    v.type = SonarPixelType::kUint8;
+  else if (k == 'u' && size == 2)
+    v.type = SonarPixelType::kUint16;
+  else if (k == 'f' && size == 4)
+    v.type = SonarPixelType::kFloat32;
+  else if (k == 'f' && size == 8)
+    v.type = SonarPixelType::kFloat64;
+  else
+    throw py::value_error("image: expected dtype uint8, uint16, float32 or float64, got " +
+                          py::str(a.dtype()).cast<std::string>());
+  if (a.strides(0) % size != 0 || a.strides(1) % size != 0)
+    throw py::value_error("image: strides are not whole elements; pass a copy (numpy.ascontiguousarray)");
+  v.data = a.data();
+  v.range_bins = static_cast<int>(a.shape(0));
+  v.beams = static_cast<int>(a.shape(1));
+  v.bin_stride = a.strides(0) / size;
+  v.beam_stride = a.strides(1) / size;
+  return v;
+}
+
 }  // namespace iwlomap::python

@@ -7,6 +7,7 @@
 // so a transposed, sliced or Fortran-order view reads correctly. NaN values pass through: the
 // library skips and counts them as it does in C++.
 
+#include <iwlomap/sonar_image_projector.h>
 #include <iwlomap/voxel_colors.h>
 
 #include <Eigen/Core>
@@ -45,6 +46,10 @@ ColorMatrix colors_from(const py::handle& obj, const char* name, Eigen::Index n 
 Eigen::Isometry3d pose_from(const py::handle& obj, const char* name);
 
 /// A matrix as a C-order float64 numpy array of its shape.
+/// A 2-D image array (range bins x beams; uint8, uint16, float32 or float64; any strides) as a
+/// view of its own buffer: the array must outlive the view, so the caller keeps it.
+SonarImageView image_view_of(const py::array& a);
+
 py::array_t<double> to_numpy(const Eigen::MatrixXd& m);
 /// A vector as a 1-D float64 numpy array.
 py::array_t<double> to_numpy(const Eigen::VectorXd& v);

@@ -78,3 +78,59 @@ def test_registered_mapper_corrects_a_drift(courtyard):
         assert rm.correction().shape == (4, 4)
     for a, b in zip(*results):
         assert np.array_equal(a, b)
+
+
+@pytest.mark.skipif(not iwlomap.HAS_REGISTRATION, reason="built without the registration layer")
+def test_registered_sonar_mapper_by_submaps():
+    # A sonar 1 m above a flat floor, pitched 30 degrees down, moving along x: each beam's echo
+    # where its lowest ray meets the floor. The mechanics: submaps of 3 pings, the same poses and
+    # map in both modes, options checked.
+    bearings = np.linspace(-0.4, 0.4, 24)
+    geometry = iwlomap.SonarGeometry(bearings=bearings, range_resolution=0.02, max_range=4.0,
+                                     vertical_aperture=np.radians(20.0))
+    image = np.zeros((200, len(bearings)), dtype=np.uint8)
+    image[int(1.0 / np.sin(np.radians(40.0)) / 0.02), :] = 200
+
+    def pose(x):
+        p = np.eye(4)
+        c, s = np.cos(np.radians(-30.0)), np.sin(np.radians(-30.0))
+        level = np.diag([1.0, -1.0, -1.0])  # sonar +Z down, map +z up
+        pitch = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+        p[:3, :3] = level @ pitch
+        p[:3, 3] = [x, 0.0, 1.0]
+        return p
+
+    outputs = []
+    for mode in (iwlomap.ExecutionMode.kSequential, iwlomap.ExecutionMode.kParallel):
+        m = iwlomap.ProbabilityUpdater(0.05)
+        options = iwlomap.RegisteredSonarMapperOptions()
+        options.pings_per_submap = 3
+        assert options.matcher.icp.planar and not options.matcher.coarse
+        rm = iwlomap.RegisteredSonarMapper(m, iwlomap.SonarImageProjector(0.05, iwlomap.SonarProjectorParams()),
+                                           mode, options)
+        for k in range(7):
+            rm.integrate(pose(0.05 * k), image, geometry)
+        submaps = rm.sync()
+        assert [s.pings for s in submaps] == [3, 3, 1]
+        assert [s.first_ping for s in submaps] == [0, 3, 6]
+        assert not submaps[0].registered  # nothing to register against yet
+        assert all(p.shape == (4, 4) for s in submaps for p in s.integrated_poses)
+        assert m.get_num_nodes() > 0 and rm.correction().shape == (4, 4)
+        outputs.append(([p for s in submaps for p in s.integrated_poses], m.get_occupied_voxels(0.5)))
+    for a, b in zip(outputs[0][0], outputs[1][0]):
+        assert np.array_equal(a, b)
+    assert np.array_equal(outputs[0][1], outputs[1][1])
+
+    options = iwlomap.RegisteredSonarMapperOptions()
+    options.pings_per_submap = 0
+    with pytest.raises(ValueError, match="pings_per_submap"):
+        iwlomap.RegisteredSonarMapper(iwlomap.ProbabilityUpdater(0.05),
+                                      iwlomap.SonarImageProjector(0.05, iwlomap.SonarProjectorParams()),
+                                      iwlomap.ExecutionMode.kSequential, options)
+    rm = iwlomap.RegisteredSonarMapper(iwlomap.ProbabilityUpdater(0.05),
+                                       iwlomap.SonarImageProjector(0.05, iwlomap.SonarProjectorParams()))
+    with pytest.raises(ValueError, match="dtype"):
+        rm.integrate(pose(0.0), image.astype(np.int64), geometry)
+    with pytest.raises(ValueError):
+        rm.integrate(pose(0.0), image, iwlomap.SonarGeometry(bearings=bearings[:-1], range_resolution=0.02,
+                                                            max_range=4.0))
