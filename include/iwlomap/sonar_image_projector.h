@@ -19,7 +19,8 @@
 ///
 /// The model, per beam:
 /// - the first return is the first range bin with intensity > intensity_threshold whose centre
-///   lies in [min_range, max_range];
+///   lies in [min_range, max_range] (with a CFAR detector: the first such bin that is also a CFAR
+///   detection; the CFAR windows may reach bins outside that range);
 /// - free samples cover ranges [min_range, r_return) (the sonar hears nothing there, so that
 ///   water is empty), spread over the vertical aperture;
 /// - occupied samples cover [r_return, r_return + occupied_band], spread over the aperture arc,
@@ -31,12 +32,14 @@
 /// The near field inside min_range gives no evidence at all: the transducer ringing hides it.
 
 #include "iwlomap/mapper_backend.h"
+#include "iwlomap/sonar_cfar.h"
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <type_traits>
 #include <vector>
 
@@ -138,8 +141,13 @@ enum class SonarNoReturn {
 struct SonarProjectorParams {
   /// A bin is an echo when its intensity exceeds this (raw units). Use the map's
   /// intensity_threshold: the map counts an occupied observation at or below its own threshold as
-  /// free, so a lower value here only adds free observations.
+  /// free, so a lower value here only adds free observations. With a CFAR detector, an echo must
+  /// also exceed this (0: CFAR alone).
   double intensity_threshold = 35.0;
+  /// How the first return is found: the fixed threshold above (default) or a CFAR detector
+  /// against the beam's local noise level (sonar_cfar.h).
+  SonarDetector detector = SonarDetector::kThreshold;
+  SonarCfarParams cfar;  ///< the CFAR detector's window and false-alarm rate
   /// Range step between samples along a beam, in voxels (> 0). 0.5 puts about two samples along
   /// every voxel a beam crosses, so no voxel is skipped.
   double free_sample_stride = 0.5;
@@ -212,6 +220,7 @@ class SonarImageProjector {
  private:
   double resolution_;
   SonarProjectorParams params_;
+  std::shared_ptr<const SonarCfar> cfar_;  // null for SonarDetector::kThreshold
 };
 
 }  // namespace iwlomap

@@ -81,12 +81,17 @@ void SonarProjectorParams::validate() const {
     fail(what, "occupied_band", occupied_band, "must be finite and >= 0 metres");
   if (no_return != SonarNoReturn::kNothing && no_return != SonarNoReturn::kFreeToMaxRange)
     fail(what, "no_return", static_cast<double>(no_return), "must be kNothing or kFreeToMaxRange");
+  if (detector != SonarDetector::kThreshold && detector != SonarDetector::kCellAveragingCfar &&
+      detector != SonarDetector::kOrderedStatisticCfar)
+    fail(what, "detector", static_cast<double>(detector), "must be a SonarDetector");
+  if (detector != SonarDetector::kThreshold) cfar.validate();
 }
 
 SonarImageProjector::SonarImageProjector(double resolution, const SonarProjectorParams& params)
     : resolution_(resolution), params_(params) {
   detail::check_resolution(resolution);
   params_.validate();
+  if (params_.detector != SonarDetector::kThreshold) cfar_ = std::make_shared<const SonarCfar>(params_.detector, params_.cfar);
 }
 
 SonarObservations SonarImageProjector::project(const SonarImageView& image, const SonarGeometry& geometry,
@@ -174,11 +179,16 @@ SonarObservations SonarImageProjector::project(const SonarImageView& image, cons
     const double b = geometry.bearings[static_cast<std::size_t>(beam)];
     const Eigen::Vector3d ahead = rot * Eigen::Vector3d(std::cos(b), std::sin(b), 0.0);
     int hit = -1;
-    for (int bin = first_bin; bin <= last_bin; ++bin)
-      if (image.at(bin, beam) > p.intensity_threshold) {
-        hit = bin;
-        break;
-      }
+    if (cfar_) {
+      hit = cfar_->first_detection(image.range_bins, first_bin, last_bin, [&](int i) { return image.at(i, beam); },
+                                   p.intensity_threshold);
+    } else {
+      for (int bin = first_bin; bin <= last_bin; ++bin)
+        if (image.at(bin, beam) > p.intensity_threshold) {
+          hit = bin;
+          break;
+        }
+    }
     double free_end = 0.0;  // free samples at grid ranges r < free_end (or <= when no return)
     bool free_inclusive = false;
     if (hit >= 0) {
