@@ -17,6 +17,10 @@
 //                      weight; occupied: p > 0.5 (OctoMap's). Run through ProbabilityUpdater with
 //                      sharpness 0 (w = 0.5, so L_occ is doubled), decay 0 (alpha = 1), adaptive
 //                      off and unit weights.
+//   IWLO (defaults), OS-CFAR detection
+//                      IWLO (defaults), the first return found by an ordered-statistic CFAR
+//                      detector (near-side window, P_fa 1e-3, sonar_cfar.h) that must also
+//                      exceed the threshold of 35, instead of the threshold alone.
 //   intensity average  a running weighted average of intensity per voxel, sum(W I) / sum(W) over
 //                      all observations (free ones carry the dark pixels before the echo);
 //                      occupied: the average exceeds the echo threshold (35).
@@ -328,6 +332,7 @@ struct Method {
   std::string name;
   iwlomap::IwloParams params;
   bool unit_weights = false;
+  int projector = 0;  // 0: the fixed-threshold projector; 1: the CFAR one
 };
 
 std::vector<Method> methods(bool ablation) {
@@ -352,6 +357,9 @@ std::vector<Method> methods(bool ablation) {
   sharp.sharpness = 8.0;
   out.push_back({"IWLO, sharpness 8", sharp, false});
   out.push_back({"log-odds (OctoMap increments)", log_odds, true});
+  // The detector alone: the same map, the first return found by OS-CFAR against the beam's own
+  // water column instead of the fixed threshold.
+  out.push_back({"IWLO (defaults), OS-CFAR detection", iwlo, false, 1});
   if (ablation) {
     // Which ingredient of IWLO makes the difference: take them away one at a time, and give plain
     // log-odds IWLO's increments or threshold.
@@ -567,6 +575,9 @@ int main(int argc, char** argv) {
   pp.occupied_band = opt.band;
   pp.no_return = SonarNoReturn::kFreeToMaxRange;
   const SonarImageProjector projector(opt.resolution, pp);
+  SonarProjectorParams cp = pp;  // OS-CFAR, near-side window, P_fa 1e-3; echoes must also exceed 35
+  cp.detector = SonarDetector::kOrderedStatisticCfar;
+  const SonarImageProjector cfar_projector(opt.resolution, cp);
   const std::vector<Method> tested = methods(opt.ablation);
   std::vector<double> probability_sweep, intensity_sweep;
   for (int i = 0; i <= 9; ++i) probability_sweep.push_back(0.5 + 0.05 * i);
@@ -608,10 +619,14 @@ int main(int argc, char** argv) {
     for (const bench::SimulatedPing& ping : sim.pings) {
       const SonarObservations obs = projector.project(make_sonar_image_view(ping.image), sim.geometry, ping.pose);
       observations += obs.size();
-      const Eigen::VectorXd ones = Eigen::VectorXd::Ones(obs.weights.size());
-      for (std::size_t i = 0; i < tested.size(); ++i)
-        maps[i]->batch_update_iwlo(obs.points, obs.intensities, obs.is_occupied,
-                                   tested[i].unit_weights ? ones : obs.weights);
+      SonarObservations cfar_obs;
+      if (std::any_of(tested.begin(), tested.end(), [](const Method& m) { return m.projector == 1; }))
+        cfar_obs = cfar_projector.project(make_sonar_image_view(ping.image), sim.geometry, ping.pose);
+      for (std::size_t i = 0; i < tested.size(); ++i) {
+        const SonarObservations& o = tested[i].projector == 1 ? cfar_obs : obs;
+        const Eigen::VectorXd ones = Eigen::VectorXd::Ones(o.weights.size());
+        maps[i]->batch_update_iwlo(o.points, o.intensities, o.is_occupied, tested[i].unit_weights ? ones : o.weights);
+      }
       average.update(obs, opt.resolution);
     }
     const auto t2 = std::chrono::steady_clock::now();

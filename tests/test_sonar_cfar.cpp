@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <random>
 #include <stdexcept>
@@ -30,8 +31,10 @@ struct Counts {
 
 // Noise-only beams; the noise scale jumps from sigma to 10 sigma at bin step (a gain change), and
 // the cells whose window straddles the step are left out of the count.
-Counts false_alarms(SonarDetector detector, double pfa, double sigma, std::uint32_t seed, int step = -1) {
+Counts false_alarms(SonarDetector detector, SonarCfarWindow window, double pfa, double sigma, std::uint32_t seed,
+                    int step = -1) {
   SonarCfarParams p;
+  p.window = window;
   p.false_alarm_rate = pfa;
   p.min_noise_intensity = 0.0;  // continuous noise here
   const SonarCfar cfar(detector, p);
@@ -61,18 +64,22 @@ void expect_rate(const Counts& c, double pfa, const std::string& what) {
 
 TEST(SonarCfar, FalseAlarmRateHoldsAtAnyNoiseLevel) {
   for (const SonarDetector d : {SonarDetector::kCellAveragingCfar, SonarDetector::kOrderedStatisticCfar})
-    for (const double pfa : {1e-2, 1e-3})
-      for (std::uint32_t seed = 1; seed <= 5; ++seed) {
-        const double sigma = seed * 7.0;  // the rate must not depend on the level
-        expect_rate(false_alarms(d, pfa, sigma, seed), pfa,
-                    "detector " + std::to_string(static_cast<int>(d)) + ", pfa " + std::to_string(pfa) + ", seed " +
-                        std::to_string(seed));
-      }
+    for (const SonarCfarWindow w : {SonarCfarWindow::kNearSide, SonarCfarWindow::kBothSides})
+      for (const double pfa : {1e-2, 1e-3})
+        for (std::uint32_t seed = 1; seed <= 5; ++seed) {
+          const double sigma = seed * 7.0;  // the rate must not depend on the level
+          expect_rate(false_alarms(d, w, pfa, sigma, seed), pfa,
+                      "detector " + std::to_string(static_cast<int>(d)) + ", window " +
+                          std::to_string(static_cast<int>(w)) + ", pfa " + std::to_string(pfa) + ", seed " +
+                          std::to_string(seed));
+        }
 }
 
 TEST(SonarCfar, FalseAlarmRateHoldsOnBothSidesOfAGainStep) {
   for (const SonarDetector d : {SonarDetector::kCellAveragingCfar, SonarDetector::kOrderedStatisticCfar})
-    expect_rate(false_alarms(d, 1e-2, 5.0, 11, 200), 1e-2, "gain step, detector " + std::to_string(static_cast<int>(d)));
+    for (const SonarCfarWindow w : {SonarCfarWindow::kNearSide, SonarCfarWindow::kBothSides})
+      expect_rate(false_alarms(d, w, 1e-2, 5.0, 11, 200), 1e-2,
+                  "gain step, detector " + std::to_string(static_cast<int>(d)));
   // A fixed threshold set for the quiet half (its 1e-2 point) fires on nearly every loud bin.
   std::mt19937 rng(11);
   const double threshold = 5.0 * std::sqrt(-2.0 * std::log(1e-2));
@@ -84,6 +91,7 @@ TEST(SonarCfar, FalseAlarmRateHoldsOnBothSidesOfAGainStep) {
 TEST(SonarCfar, DetectsTargetsTwentyDecibelsAboveTheFloor) {
   for (const SonarDetector d : {SonarDetector::kCellAveragingCfar, SonarDetector::kOrderedStatisticCfar}) {
     SonarCfarParams p;
+    p.window = SonarCfarWindow::kBothSides;
     p.min_noise_intensity = 0.0;
     const SonarCfar cfar(d, p);
     std::mt19937 rng(21);
@@ -107,6 +115,7 @@ TEST(SonarCfar, FactorsByHand) {
   SonarCfarParams p;
   p.guard_cells = 1;
   p.training_cells = 3;  // 2 training cells per side, 4 in all
+  p.window = SonarCfarWindow::kBothSides;
   p.false_alarm_rate = 0.01;
   const SonarCfar ca(SonarDetector::kCellAveragingCfar, p);
   EXPECT_NEAR(ca.factor(4), 4.0 * (std::pow(0.01, -0.25) - 1.0), 1e-12);  // 8.649
@@ -125,6 +134,29 @@ TEST(SonarCfar, FactorsByHand) {
   power[5] = 100.0;
   EXPECT_NEAR(ca.threshold(power, 3, scratch), ca.factor(4) * (1.0 + 1.0 + 1.0 + 100.0) / 4.0, 1e-9);
   EXPECT_NEAR(ca.threshold(power, 0, scratch), ca.factor(2) * 1.0, 1e-12);  // one side only
+}
+
+// An extended echo (a seabed that keeps echoing beyond its leading edge): with the near-side
+// window the first detection is the edge; a window on both sides counts the echo beyond the edge
+// as noise and finds the edge far less often.
+TEST(SonarCfar, NearSideWindowFindsTheLeadingEdgeOfAnExtendedEcho) {
+  std::mt19937 rng(8);
+  int near_found = 0, both_found = 0;
+  SonarCfarParams p;
+  p.false_alarm_rate = 1e-3;
+  const SonarCfar near(SonarDetector::kOrderedStatisticCfar, p);
+  p.window = SonarCfarWindow::kBothSides;
+  const SonarCfar both(SonarDetector::kOrderedStatisticCfar, p);
+  for (int beam = 0; beam < 200; ++beam) {
+    Eigen::VectorXd v(300);
+    for (int i = 0; i < v.size(); ++i) v[i] = rayleigh(rng, 6.0) + (i >= 150 ? 60.0 * rayleigh(rng, 1.0) : 0.0);
+    const auto first = [&](const SonarCfar& c) { return c.first_detection(300, 0, 299, [&](int i) { return v[i]; }); };
+    near_found += std::abs(first(near) - 150) <= 2 ? 1 : 0;
+    both_found += std::abs(first(both) - 150) <= 2 ? 1 : 0;
+  }
+  std::printf("leading edge within 2 bins: near side %d, both sides %d of 200\n", near_found, both_found);
+  EXPECT_GE(near_found, 160);
+  EXPECT_LT(both_found, near_found);
 }
 
 // A noise floor far above the fixed threshold (Rayleigh scale 40 against 35) and a wall at bin 300:

@@ -13,9 +13,10 @@
 /// amplitude of sonar noise is Rayleigh distributed, its power exponential, and for exponential
 /// noise the factors below give exactly the requested false-alarm rate.
 ///
-/// Window, per side of the cell under test (bin i): the `guard_cells` nearest bins are left out
-/// (an echo spreads over a few bins and must not raise its own noise estimate), the next
-/// `training_cells - guard_cells` bins are the training cells. Near the ends of the beam the
+/// Window, per side of the cell under test (bin i; both sides or only the nearer one, see
+/// SonarCfarWindow): the `guard_cells` nearest bins are left out (an echo spreads over a few bins
+/// and must not raise its own noise estimate), the next `training_cells - guard_cells` bins are
+/// the training cells. Near the ends of the beam the
 /// window is cut off and only the bins that exist are used, with the factor for their number.
 /// - Cell averaging (CA): noise = mean of the training powers; factor
 ///   alpha = N (P_fa^(-1/N) - 1) for N training cells. Best in uniform noise.
@@ -37,12 +38,24 @@ enum class SonarDetector {
   kOrderedStatisticCfar,  ///< the first OS-CFAR detection
 };
 
+/// Which training cells estimate the noise level.
+enum class SonarCfarWindow {
+  /// Both sides of the cell under test: the classic window, for point-like echoes in noise.
+  kBothSides,
+  /// Only the nearer bins (the water the pulse crossed before it): for the first return of an
+  /// extended echo. A seabed or a wall keeps echoing for many bins beyond its leading edge, and a
+  /// window on the far side would count that echo as noise and miss the edge.
+  kNearSide,
+};
+
 struct SonarCfarParams {
   /// Bins each side of the cell under test that the noise estimate leaves out (>= 0).
   int guard_cells = 2;
   /// Bins each side of the cell under test that the window spans, guard cells included
   /// (> guard_cells, <= 4096): training_cells - guard_cells per side are averaged or ranked.
   int training_cells = 18;
+  /// Which side(s) of the cell under test the training cells lie on.
+  SonarCfarWindow window = SonarCfarWindow::kNearSide;
   /// Probability that a bin of noise alone is detected, in (0, 1).
   double false_alarm_rate = 1e-3;
   /// OS-CFAR: the noise level is this quantile of the training powers, in (0, 1].

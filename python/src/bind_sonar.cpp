@@ -59,28 +59,71 @@ void bind_sonar(py::module_& m) {
   py::enum_<SonarNoReturn>(m, "SonarNoReturn")
       .value("kNothing", SonarNoReturn::kNothing)
       .value("kFreeToMaxRange", SonarNoReturn::kFreeToMaxRange);
+  py::enum_<SonarDetector>(m, "SonarDetector")
+      .value("kThreshold", SonarDetector::kThreshold)
+      .value("kCellAveragingCfar", SonarDetector::kCellAveragingCfar)
+      .value("kOrderedStatisticCfar", SonarDetector::kOrderedStatisticCfar);
+  py::enum_<SonarCfarWindow>(m, "SonarCfarWindow")
+      .value("kBothSides", SonarCfarWindow::kBothSides)
+      .value("kNearSide", SonarCfarWindow::kNearSide);
+  const SonarCfarParams c;
+  py::class_<SonarCfarParams>(m, "SonarCfarParams", "CFAR window and false-alarm rate (bins, probability).")
+      .def(py::init([](int guard_cells, int training_cells, SonarCfarWindow window, double false_alarm_rate,
+                       double os_rank, double min_noise_intensity) {
+             SonarCfarParams p{guard_cells, training_cells, window, false_alarm_rate, os_rank, min_noise_intensity};
+             p.validate();
+             return p;
+           }),
+           py::kw_only(), py::arg("guard_cells") = c.guard_cells, py::arg("training_cells") = c.training_cells,
+           py::arg("window") = c.window, py::arg("false_alarm_rate") = c.false_alarm_rate,
+           py::arg("os_rank") = c.os_rank, py::arg("min_noise_intensity") = c.min_noise_intensity)
+      .def_readwrite("guard_cells", &SonarCfarParams::guard_cells)
+      .def_readwrite("training_cells", &SonarCfarParams::training_cells)
+      .def_readwrite("window", &SonarCfarParams::window)
+      .def_readwrite("false_alarm_rate", &SonarCfarParams::false_alarm_rate)
+      .def_readwrite("os_rank", &SonarCfarParams::os_rank)
+      .def_readwrite("min_noise_intensity", &SonarCfarParams::min_noise_intensity)
+      .def("validate", &SonarCfarParams::validate);
+  py::class_<SonarCfar>(m, "SonarCfar", "CFAR detection along one beam.")
+      .def(py::init<SonarDetector, const SonarCfarParams&>(), py::arg("detector"), py::arg("params") = SonarCfarParams{})
+      .def(
+          "detect",
+          [](const SonarCfar& cfar, const py::handle& intensities) {
+            const Eigen::VectorXd v = values_from(intensities, "intensities");
+            const std::vector<bool> d = cfar.detect(v);
+            return to_numpy(d);
+          },
+          py::arg("intensities"), "Per bin of one beam (nearest first): whether it is a detection.")
+      .def("factor", &SonarCfar::factor, py::arg("n"));
+
   const SonarProjectorParams d;
   py::class_<SonarProjectorParams>(m, "SonarProjectorParams")
       .def(py::init([](double intensity_threshold, double free_sample_stride, double elevation_sample_spacing,
-                       double occupied_band, SonarNoReturn no_return) {
+                       double occupied_band, SonarNoReturn no_return, SonarDetector detector,
+                       const SonarCfarParams& cfar) {
              SonarProjectorParams p;
              p.intensity_threshold = intensity_threshold;
              p.free_sample_stride = free_sample_stride;
              p.elevation_sample_spacing = elevation_sample_spacing;
              p.occupied_band = occupied_band;
              p.no_return = no_return;
+             p.detector = detector;
+             p.cfar = cfar;
              p.validate();
              return p;
            }),
            py::kw_only(), py::arg("intensity_threshold") = d.intensity_threshold,
            py::arg("free_sample_stride") = d.free_sample_stride,
            py::arg("elevation_sample_spacing") = d.elevation_sample_spacing,
-           py::arg("occupied_band") = d.occupied_band, py::arg("no_return") = d.no_return)
+           py::arg("occupied_band") = d.occupied_band, py::arg("no_return") = d.no_return,
+           py::arg("detector") = d.detector, py::arg("cfar") = d.cfar)
       .def_readwrite("intensity_threshold", &SonarProjectorParams::intensity_threshold)
       .def_readwrite("free_sample_stride", &SonarProjectorParams::free_sample_stride)
       .def_readwrite("elevation_sample_spacing", &SonarProjectorParams::elevation_sample_spacing)
       .def_readwrite("occupied_band", &SonarProjectorParams::occupied_band)
-      .def_readwrite("no_return", &SonarProjectorParams::no_return);
+      .def_readwrite("no_return", &SonarProjectorParams::no_return)
+      .def_readwrite("detector", &SonarProjectorParams::detector)
+      .def_readwrite("cfar", &SonarProjectorParams::cfar);
 
   py::class_<SonarImageProjector>(m, "SonarImageProjector",
                                   "Turns a sonar image (range bins x beams) at a pose into IWLO observations.")

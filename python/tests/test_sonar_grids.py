@@ -86,3 +86,33 @@ def test_stack_from_a_map(scan):
     stack = iwlomap.PrecomputationStack3D(volume, 4)
     assert stack.level(3).max() == volume.values.max()
     assert iwlomap.value_to_probability(iwlomap.probability_to_value(0.9)) == pytest.approx(0.9, abs=0.01)
+
+
+def test_cfar_detection():
+    rng = np.random.default_rng(3)
+    params = iwlomap.SonarCfarParams(false_alarm_rate=1e-2, min_noise_intensity=0.0)
+    cfar = iwlomap.SonarCfar(iwlomap.SonarDetector.kCellAveragingCfar, params)
+    cells = detections = 0
+    for _ in range(100):
+        beam = rng.rayleigh(5.0, 400)
+        d = cfar.detect(beam)
+        assert d.dtype == bool and d.shape == (400,)
+        cells += 400 - 1  # bin 0 has no training cell on its near side
+        detections += int(d[1:].sum())
+    expected = 1e-2 * cells
+    assert abs(detections - expected) < 5 * np.sqrt(expected)
+    assert cfar.factor(16) == pytest.approx(16 * (1e-2 ** (-1 / 16) - 1))
+    with pytest.raises(ValueError, match="training_cells"):
+        iwlomap.SonarCfarParams(guard_cells=4, training_cells=4)
+    with pytest.raises(ValueError, match="false_alarm_rate"):
+        iwlomap.SonarCfarParams(false_alarm_rate=1.0)
+    # The projector: a noise floor above the fixed threshold, a wall at bin 150.
+    image = rng.rayleigh(40.0, (200, 16)).astype(np.float32)
+    image[150, :] += 900
+    geometry = iwlomap.SonarGeometry(bearings=np.linspace(-0.2, 0.2, 16), range_resolution=0.02, max_range=4.0)
+    p = iwlomap.SonarProjectorParams(detector=iwlomap.SonarDetector.kOrderedStatisticCfar,
+                                     cfar=iwlomap.SonarCfarParams(false_alarm_rate=1e-4))
+    assert p.cfar.window == iwlomap.SonarCfarWindow.kNearSide
+    obs = iwlomap.SonarImageProjector(0.1, p).project(image, geometry, np.eye(4))
+    ranges = np.linalg.norm(obs.points[obs.is_occupied], axis=1)
+    assert len(ranges) > 0 and np.mean(np.abs(ranges - 3.01) < 0.15) > 0.8

@@ -64,6 +64,12 @@ sonar:
   --stride V                range step of the samples along a beam, in voxels (default 0.5)
   --elevation-spacing V     spacing of the samples across the aperture, in voxels (default 1)
   --band M                  length of the occupied band after the first echo, metres (default 0)
+  --detector NAME           how a beam's first echo is found: threshold (default: the first bin
+                            above --intensity-threshold), ca-cfar or os-cfar (the first bin
+                            whose power exceeds the noise level of the 16 bins before it, 2 guard
+                            bins apart, by the factor for --false-alarm-rate; cell averaging or
+                            ordered statistic; the bin must also exceed --intensity-threshold)
+  --false-alarm-rate P      CFAR: probability that a bin of noise alone is an echo (default 0.001)
   --no-return free|nothing  a beam without echo: free water up to the max range (default), or
                             no evidence
   --intensity-threshold I is both the echo threshold of the projection and the map's threshold.
@@ -137,7 +143,8 @@ std::vector<Eigen::Isometry3d> read_poses(const std::string& path) {
 int run_sonar(const std::vector<std::string>& argv) {
   auto value_opts = map_value_options();
   value_opts.insert({"-o", "--output", "--octomap", "--snapshot", "--poses", "--aperture", "--min-range", "--stride", "--elevation-spacing",
-                     "--band", "--no-return", "--submap-pings", "--write-poses"});
+                     "--band", "--no-return", "--submap-pings", "--write-poses", "--detector",
+                     "--false-alarm-rate"});
   auto flag_opts = map_flag_options();
   flag_opts.erase("--no-rays");
   flag_opts.insert({"-h", "--help", "-q", "--quiet", "--register"});
@@ -177,6 +184,18 @@ int run_sonar(const std::vector<std::string>& argv) {
     params.no_return = SonarNoReturn::kNothing;
   else
     throw UsageError("--no-return must be free or nothing, got '" + no_return + "'");
+  const std::string detector = args.value("--detector").value_or("threshold");
+  if (detector == "threshold")
+    params.detector = SonarDetector::kThreshold;
+  else if (detector == "ca-cfar")
+    params.detector = SonarDetector::kCellAveragingCfar;
+  else if (detector == "os-cfar")
+    params.detector = SonarDetector::kOrderedStatisticCfar;
+  else
+    throw UsageError("--detector must be threshold, ca-cfar or os-cfar, got '" + detector + "'");
+  params.cfar.false_alarm_rate = args.number("--false-alarm-rate", params.cfar.false_alarm_rate);
+  if (args.value("--false-alarm-rate") && params.detector == SonarDetector::kThreshold)
+    throw UsageError("--false-alarm-rate needs --detector ca-cfar or os-cfar");
   const double aperture_deg = args.number("--aperture", 20.0);
   if (!(aperture_deg >= 0.0 && aperture_deg < 180.0))
     throw UsageError("--aperture must be in [0, 180) degrees, got " + shortest(aperture_deg));

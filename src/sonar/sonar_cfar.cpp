@@ -33,6 +33,8 @@ void SonarCfarParams::validate() const {
     fail("training_cells", training_cells,
          ("must be > guard_cells = " + std::to_string(guard_cells) + ": the window would hold no training cell").c_str());
   if (training_cells > 4096) fail("training_cells", training_cells, "must be <= 4096");
+  if (window != SonarCfarWindow::kBothSides && window != SonarCfarWindow::kNearSide)
+    fail("window", static_cast<double>(window), "must be a SonarCfarWindow");
   if (!(false_alarm_rate > 0.0 && false_alarm_rate < 1.0))
     fail("false_alarm_rate", false_alarm_rate, "must be in (0, 1)");
   if (!(os_rank > 0.0 && os_rank <= 1.0)) fail("os_rank", os_rank, "must be in (0, 1]");
@@ -81,7 +83,7 @@ double SonarCfar::threshold(const std::vector<double>& power, int i, std::vector
     }
   };
   take(i - t, i - g - 1);
-  take(i + g + 1, i + t);
+  if (params_.window == SonarCfarWindow::kBothSides) take(i + g + 1, i + t);
   const int n = static_cast<int>(scratch.size());
   if (n == 0) return std::numeric_limits<double>::infinity();
   double noise = 0.0;

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: BSD-3-Clause
-# `iwlomap sonar --register` end to end: a first simulated survey is mapped at its true poses into
+# `iwlomap sonar --register` (and `--detector`) end to end: a first simulated survey is mapped at its true poses into
 # a Disk map; a second survey of the same site, whose navigation drifts 1 % of the distance, is
 # registered against that map. The poses it writes must end much closer to the truth than the
 # navigation's.
@@ -36,4 +36,14 @@ if "$TOOL" sonar "$WORK/survey.raw" -o "$WORK/x.pcd" --register --submap-pings 0
 grep -q "submap-pings must be >= 1" "$WORK/bad.err"
 if "$TOOL" sonar "$WORK/survey.raw" -o "$WORK/x.pcd" --submap-pings 5 2> "$WORK/bad.err"; then exit 1; fi
 grep -q "needs --register" "$WORK/bad.err"
-echo "sonar --register: passed"
+# CFAR detection: the true-pose survey mapped with OS-CFAR; bad detector values.
+"$TOOL" sonar "$WORK/survey.raw" --poses "$WORK/survey_truth.txt" --resolution 0.1 --detector os-cfar \
+  --false-alarm-rate 0.0001 -o "$WORK/cfar.pcd" | tee "$WORK/cfar.out"
+grep -q "beams with an echo" "$WORK/cfar.out" && test -s "$WORK/cfar.pcd"
+if "$TOOL" sonar "$WORK/survey.raw" -o "$WORK/x.pcd" --detector median 2> "$WORK/bad.err"; then exit 1; fi
+grep -q "detector must be threshold, ca-cfar or os-cfar, got 'median'" "$WORK/bad.err"
+if "$TOOL" sonar "$WORK/survey.raw" -o "$WORK/x.pcd" --detector ca-cfar --false-alarm-rate 1 2> "$WORK/bad.err"; then exit 1; fi
+grep -q "false_alarm_rate = 1" "$WORK/bad.err"
+if "$TOOL" sonar "$WORK/survey.raw" -o "$WORK/x.pcd" --false-alarm-rate 0.01 2> "$WORK/bad.err"; then exit 1; fi
+grep -q "needs --detector" "$WORK/bad.err"
+echo "sonar --register and --detector: passed"
