@@ -388,6 +388,18 @@ std::vector<Method> methods(bool ablation) {
   return out;
 }
 
+// The survey the options ask for, at one noise level.
+iwlomap::bench::SonarSimOptions sim_options(const Options& opt, const iwlomap::bench::SonarNoise& noise) {
+  iwlomap::bench::SonarSimOptions so;
+  so.noise = noise;
+  so.resolution = opt.resolution;
+  so.ping_spacing = opt.ping_spacing;
+  so.truth_band = std::max(opt.band, 0.5 * opt.resolution);
+  so.echo_threshold = kEchoThreshold;
+  so.seed = opt.seed;
+  return so;
+}
+
 // Position (m) and rotation (degrees) between two poses.
 std::pair<double, double> pose_error(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
   const Eigen::AngleAxisd turn(a.linear().transpose() * b.linear());
@@ -422,13 +434,7 @@ int run_drift(const Options& opt, const iwlomap::SonarImageProjector& projector,
   iwlo.intensity_threshold = kEchoThreshold;
   std::vector<std::string> rows[2], notes;
   for (const bench::SonarNoise& noise : {bench::light_noise(), bench::heavy_noise()}) {
-    bench::SonarSimOptions so;
-    so.noise = noise;
-    so.resolution = opt.resolution;
-    so.ping_spacing = opt.ping_spacing;
-    so.truth_band = std::max(opt.band, 0.5 * opt.resolution);
-    so.echo_threshold = kEchoThreshold;
-    so.seed = opt.seed;
+    bench::SonarSimOptions so = sim_options(opt, noise);
     so.drift = opt.drift;
     const bench::SonarSimulation sim = bench::simulate_sonar_survey(so);
 
@@ -598,13 +604,7 @@ int main(int argc, char** argv) {
   std::vector<bench::SonarNoise> levels = {bench::light_noise(), bench::heavy_noise()};
   if (opt.ablation) levels.erase(levels.begin());
   for (const bench::SonarNoise& noise : levels) {
-    bench::SonarSimOptions so;
-    so.noise = noise;
-    so.resolution = opt.resolution;
-    so.ping_spacing = opt.ping_spacing;
-    so.truth_band = std::max(opt.band, 0.5 * opt.resolution);
-    so.echo_threshold = kEchoThreshold;
-    so.seed = opt.seed;
+    const bench::SonarSimOptions so = sim_options(opt, noise);
     const auto t0 = std::chrono::steady_clock::now();
     const bench::SonarSimulation sim = bench::simulate_sonar_survey(so);
     const auto t1 = std::chrono::steady_clock::now();
