@@ -42,6 +42,9 @@
 //
 // --ablation: heavy noise only: IWLO with one ingredient removed at a time, and plain log-odds
 //             with other increments or threshold, to show where the differences come from.
+// --scene pilings: the second scene (sonar_sim.h: a sloping floor, pier pilings, a quay wall).
+// --gain-errors: what moves the noise floor: a time-varied-gain error of 0.5 dB per metre about
+//             mid-range, the second leg 6 dB brighter, and mud (reflectivity 0.2) from x = 14 m.
 // --dump PREFIX: writes the truth sets and every method's occupied voxels as x y z text files.
 // --drift F:  instead of the tables above, the survey with navigation drift (F of the distance
 //             travelled, see sonar_sim.h) mapped by IWLO (defaults) three ways: at the true poses,
@@ -56,7 +59,7 @@
 //             --submaps prints each submap's registration to standard error.
 //
 // Usage: bench_sonar_accuracy [--resolution R] [--ping-spacing S] [--band M] [--seed N] [--quick]
-//                             [--ablation] [--dump PREFIX]
+//                             [--scene objects|pilings] [--gain-errors] [--ablation] [--dump PREFIX]
 //                             [--drift F [--submap-pings K] [--coarse] [--six-dof] [--no-rmse-limit] [--submaps]]
 
 #include "sonar_sim.h"
@@ -281,13 +284,17 @@ struct Options {
   double drift = -1.0;    // < 0: no drift comparison
   int submap_pings = 80;
   bool coarse = false, six_dof = false, no_rmse_limit = false, submaps = false;  // --drift variants
+  iwlomap::bench::SonarScene scene = iwlomap::bench::SonarScene::kObjects;
+  bool gain_errors = false;
   std::string dump;  // prefix of x y z text files of the truth and of every method's voxels
 };
 
 [[noreturn]] void usage(const std::string& problem) {
   std::fprintf(stderr,
                "bench_sonar_accuracy: %s\nusage: bench_sonar_accuracy [--resolution R] [--ping-spacing S] "
-               "[--band M] [--seed N] [--quick] [--ablation] [--dump PREFIX] [--drift F [--submap-pings K] [--coarse] [--six-dof] [--no-rmse-limit] [--submaps]]\n",
+               "[--band M] [--seed N] [--quick]\n    [--scene objects|pilings] [--gain-errors] [--ablation] "
+               "[--dump PREFIX] [--drift F [--submap-pings K] [--coarse] [--six-dof] [--no-rmse-limit] "
+               "[--submaps]]\n",
                problem.c_str());
   std::exit(2);
 }
@@ -315,6 +322,14 @@ Options parse(int argc, char** argv) {
     else if (a == "--six-dof") o.six_dof = true;
     else if (a == "--no-rmse-limit") o.no_rmse_limit = true;
     else if (a == "--submaps") o.submaps = true;
+    else if (a == "--gain-errors") o.gain_errors = true;
+    else if (a == "--scene") {
+      if (i + 1 >= argc) usage("--scene needs objects or pilings");
+      const std::string scene = argv[++i];
+      if (scene == "objects") o.scene = iwlomap::bench::SonarScene::kObjects;
+      else if (scene == "pilings") o.scene = iwlomap::bench::SonarScene::kPilings;
+      else usage("--scene must be objects or pilings, got '" + scene + "'");
+    }
     else if (a == "--dump") {
       if (i + 1 >= argc) usage("--dump needs a prefix");
       o.dump = argv[++i];
@@ -397,6 +412,12 @@ iwlomap::bench::SonarSimOptions sim_options(const Options& opt, const iwlomap::b
   so.truth_band = std::max(opt.band, 0.5 * opt.resolution);
   so.echo_threshold = kEchoThreshold;
   so.seed = opt.seed;
+  so.scene = opt.scene;
+  if (opt.gain_errors) {
+    so.tvg_error_db_per_m = 0.5;
+    so.gain_change_db = 6.0;
+    so.second_floor_reflectivity = 0.2;
+  }
   return so;
 }
 
@@ -589,8 +610,9 @@ int main(int argc, char** argv) {
   for (int i = 0; i <= 9; ++i) probability_sweep.push_back(0.5 + 0.05 * i);
   for (int i = 0; i <= 17; ++i) intensity_sweep.push_back(35.0 + 5.0 * i);
 
-  std::printf("# bench_sonar_accuracy: resolution %.3f m, ping spacing %.3f m, occupied band %.3f m, seed %u%s\n\n",
-              opt.resolution, opt.ping_spacing, opt.band, opt.seed, opt.ablation ? ", ablation" : "");
+  std::printf("# bench_sonar_accuracy: resolution %.3f m, ping spacing %.3f m, occupied band %.3f m, seed %u%s%s%s\n\n",
+              opt.resolution, opt.ping_spacing, opt.band, opt.seed, opt.ablation ? ", ablation" : "",
+              opt.scene == bench::SonarScene::kPilings ? ", scene pilings" : "", opt.gain_errors ? ", gain errors" : "");
   if (opt.drift >= 0.0) {
 #ifdef IWLOMAP_BENCH_REGISTRATION
     std::printf("Navigation drift %.3f of the distance travelled, registration with submaps of %d pings\n\n", opt.drift,

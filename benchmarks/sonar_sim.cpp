@@ -99,8 +99,31 @@ double circle_entry(double ou, double ov, double du, double dv, double cu, doubl
   return (-b - std::sqrt(disc)) / a;
 }
 
-void hit_scene(const Eigen::Vector3d& o, const Eigen::Vector3d& d, Hit& best) {
-  if (d.z() < 0.0) keep(best, (kFloorZ - o.z()) / d.z(), Eigen::Vector3d::UnitZ(), kFloorReflectivity);
+// A standing cylinder on a floor at height base (its top is a disc).
+void hit_standing(const Eigen::Vector3d& o, const Eigen::Vector3d& d, const StandingCylinder& c, double base,
+                  Hit& best) {
+  const double t = circle_entry(o.x(), o.y(), d.x(), d.y(), c.x, c.y, c.radius);
+  const Eigen::Vector3d p = o + t * d;
+  if (t > 0.0 && p.z() >= base && p.z() <= base + c.height)
+    keep(best, t, Eigen::Vector3d(p.x() - c.x, p.y() - c.y, 0.0) / c.radius, c.reflectivity);
+  if (d.z() < 0.0) {
+    const double tc = (base + c.height - o.z()) / d.z();
+    const Eigen::Vector3d q = o + tc * d;
+    if (std::hypot(q.x() - c.x, q.y() - c.y) <= c.radius) keep(best, tc, Eigen::Vector3d::UnitZ(), c.reflectivity);
+  }
+}
+
+// The seafloor's reflectivity at x: sand, and from x = 14 m on the second seabed type.
+double floor_reflectivity(double x, const SonarSimOptions& o) {
+  return x >= 14.0 && o.second_floor_reflectivity >= 0.0 ? o.second_floor_reflectivity : kFloorReflectivity;
+}
+
+// Scene kObjects: a flat floor and five objects.
+void hit_objects(const Eigen::Vector3d& o, const Eigen::Vector3d& d, const SonarSimOptions& options, Hit& best) {
+  if (d.z() < 0.0) {
+    const double t = (kFloorZ - o.z()) / d.z();
+    keep(best, t, Eigen::Vector3d::UnitZ(), floor_reflectivity(o.x() + t * d.x(), options));
+  }
   for (const Box& b : kBoxes) hit_box(o, d, b, best);
   hit_sphere(o, d, kBoulder, best);
   {
@@ -110,18 +133,36 @@ void hit_scene(const Eigen::Vector3d& o, const Eigen::Vector3d& d, Hit& best) {
     if (t > 0.0 && p.y() >= c.y0 && p.y() <= c.y1)
       keep(best, t, Eigen::Vector3d(p.x() - c.x, 0.0, p.z() - c.z) / c.radius, c.reflectivity);
   }
-  {
-    const StandingCylinder& c = kPile;
-    const double t = circle_entry(o.x(), o.y(), d.x(), d.y(), c.x, c.y, c.radius);
-    const Eigen::Vector3d p = o + t * d;
-    if (t > 0.0 && p.z() >= kFloorZ && p.z() <= kFloorZ + c.height)
-      keep(best, t, Eigen::Vector3d(p.x() - c.x, p.y() - c.y, 0.0) / c.radius, c.reflectivity);
-    if (d.z() < 0.0) {  // the top of the pile
-      const double tc = (kFloorZ + c.height - o.z()) / d.z();
-      const Eigen::Vector3d q = o + tc * d;
-      if (std::hypot(q.x() - c.x, q.y() - c.y) <= c.radius) keep(best, tc, Eigen::Vector3d::UnitZ(), c.reflectivity);
-    }
+  hit_standing(o, d, kPile, kFloorZ, best);
+}
+
+// Scene kPilings: a floor sloping up along +x (kSlope, through kFloorZ at x = 12 m), two rows of
+// pier pilings (radius 0.25 m, 4 m tall, every 4 m along x at y = +-3.5 m) and a quay wall across
+// the end of the survey (x = 31 m).
+constexpr double kSlope = 0.05;
+double sloped_floor(double x) { return kFloorZ + kSlope * (x - 12.0); }
+
+void hit_pilings(const Eigen::Vector3d& o, const Eigen::Vector3d& d, const SonarSimOptions& options, Hit& best) {
+  // The floor z = kFloorZ + kSlope (x - 12): along the ray, its height above the floor falls at
+  // the rate d.z - kSlope d.x.
+  const double rate = d.z() - kSlope * d.x();
+  if (rate < 0.0) {
+    const double t = (sloped_floor(o.x()) - o.z()) / rate;
+    keep(best, t, Eigen::Vector3d(-kSlope, 0.0, 1.0).normalized(), floor_reflectivity(o.x() + t * d.x(), options));
   }
+  for (int k = 0; k < 8; ++k)
+    for (const double y : {-3.5, 3.5}) {
+      const StandingCylinder c{-1.0 + 4.0 * k, y, 0.25, 4.0, 0.85};
+      hit_standing(o, d, c, sloped_floor(c.x) - 0.5, best);
+    }
+  hit_box(o, d, Box{{31.0, -10.0, sloped_floor(31.0) - 1.0}, {32.0, 10.0, kFloorZ + 8.0}, 0.8}, best);
+}
+
+void hit_scene(const Eigen::Vector3d& o, const Eigen::Vector3d& d, const SonarSimOptions& options, Hit& best) {
+  if (options.scene == SonarScene::kPilings)
+    hit_pilings(o, d, options, best);
+  else
+    hit_objects(o, d, options, best);
 }
 
 // Seeded noise from mt19937, whose output sequence the standard fixes (the standard's
@@ -177,9 +218,11 @@ SonarNoise heavy_noise() {
 
 SonarSimulation simulate_sonar_survey(const SonarSimOptions& o) {
   if (o.beams < 1 || o.range_bins < 1 || o.elevation_rays < 1 || !(o.range_resolution > 0.0) ||
-      !(o.ping_spacing > 0.0) || !(o.resolution > 0.0) || !(o.drift >= 0.0))
+      !(o.ping_spacing > 0.0) || !(o.resolution > 0.0) || !(o.drift >= 0.0) || !std::isfinite(o.tvg_error_db_per_m) ||
+      !std::isfinite(o.gain_change_db) || !(o.second_floor_reflectivity <= 1.0))
     throw std::invalid_argument("sonar simulation: beams, range_bins, elevation_rays, range_resolution, "
-                                "ping_spacing and resolution must be > 0, drift >= 0");
+                                "ping_spacing and resolution must be > 0, drift >= 0, gains finite, "
+                                "second_floor_reflectivity <= 1");
   SonarSimulation sim;
   SonarGeometry& g = sim.geometry;
   const double fov = o.horizontal_fov_deg * kPi / 180.0;
@@ -222,7 +265,8 @@ SonarSimulation simulate_sonar_survey(const SonarSimOptions& o) {
       SimulatedPing ping;
       ping.pose = Eigen::Isometry3d::Identity();
       ping.pose.linear() = rot;
-      ping.pose.translation() = Eigen::Vector3d(x, o.leg_y[leg], kFloorZ + o.altitude);
+      ping.pose.translation() =
+          Eigen::Vector3d(x, o.leg_y[leg], (o.scene == SonarScene::kPilings ? sloped_floor(x) : kFloorZ) + o.altitude);
       const Eigen::Vector3d origin = ping.pose.translation();
       if (o.drift > 0.0 && last_position.allFinite()) {
         const double travelled = (origin - last_position).norm();
@@ -249,7 +293,7 @@ SonarSimulation simulate_sonar_survey(const SonarSimOptions& o) {
         for (const Eigen::Vector2d& ce : elevation) {
           const Eigen::Vector3d d = ce[0] * ahead + ce[1] * down;
           Hit hit;
-          hit_scene(origin, d, hit);
+          hit_scene(origin, d, o, hit);
           if (!(hit.t < max_range)) continue;
           const Eigen::Vector3d p = origin + hit.t * d;
           const double amplitude = 255.0 * hit.reflectivity * std::abs(d.dot(hit.normal));
@@ -292,6 +336,16 @@ SonarSimulation simulate_sonar_survey(const SonarSimOptions& o) {
         for (int b = b0; b < std::min(o.beams, b0 + width); ++b)
           for (int r = r0; r < std::min(o.range_bins, r0 + len); ++r)
             image(r, b) += static_cast<float>(strength * (noise.speckle_looks > 0 ? rng.speckle(noise.speckle_looks) : 1.0));
+      }
+      // Receiver gain errors act on everything the receiver records: a time-varied-gain error
+      // that grows with range (dB per metre about mid-range) and a gain change on the second leg.
+      if (o.tvg_error_db_per_m != 0.0 || (leg == 1 && o.gain_change_db != 0.0)) {
+        const double leg_db = leg == 1 ? o.gain_change_db : 0.0;
+        for (int r = 0; r < o.range_bins; ++r) {
+          const double range = (r + 0.5) * o.range_resolution;
+          const double db = leg_db + o.tvg_error_db_per_m * (range - 0.5 * max_range);
+          image.row(r) *= static_cast<float>(std::pow(10.0, db / 20.0));
+        }
       }
       ping.image = image.array().round().min(255.0f).max(0.0f).cast<std::uint8_t>();
 

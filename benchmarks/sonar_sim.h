@@ -4,10 +4,11 @@
 // A synthetic forward-looking imaging sonar with known ground truth, for the sonar accuracy
 // benchmark (bench_sonar_accuracy). Eigen and the standard library only.
 //
-// Scene (map frame, metres, +z up): a flat seafloor at z = -0.37 (off the voxel layer planes) and
-// five objects standing on it or partly buried: a container-sized box (2 x 1 x 1 m), a low box,
+// Scene kObjects (map frame, metres, +z up): a flat seafloor at z = -0.37 (off the voxel layer
+// planes) and five objects standing on it or partly buried: a container-sized box (2 x 1 x 1 m), a low box,
 // a boulder (sphere), a pipeline (horizontal cylinder across the survey) and a pile (vertical
-// cylinder, 2 m high). The sea surface is `surface_height` above the floor.
+// cylinder, 2 m high). The sea surface is `surface_height` above the floor. Scene kPilings: see
+// SonarScene.
 //
 // Sensor: `beams` beams over `horizontal_fov_deg`, each a vertical fan of `vertical_aperture_deg`
 // rendered with `elevation_rays` rays; `range_bins` bins of `range_resolution`. The sonar flies a
@@ -61,7 +62,15 @@ struct SonarNoise {
 /// strong multipath and sidelobes, frequent clutter.
 [[nodiscard]] SonarNoise heavy_noise();
 
+/// The scene surveyed.
+enum class SonarScene {
+  kObjects,  ///< flat floor, two boxes, a boulder, a pipeline, a pile (the header comment)
+  kPilings,  ///< a floor sloping up 5 % along +x, two rows of pier pilings at y = +-3.5 m
+             ///< (every 4 m, radius 0.25 m, 4 m tall) and a quay wall across x = 31 m
+};
+
 struct SonarSimOptions {
+  SonarScene scene = SonarScene::kObjects;
   int beams = 128;
   double horizontal_fov_deg = 90.0;
   double vertical_aperture_deg = 20.0;
@@ -84,6 +93,15 @@ struct SonarSimOptions {
   /// sqrt(metre). Depth, roll and pitch stay true (a pressure sensor and the gravity vector
   /// observe them). With 0.01 over the 64 m survey the position error ends near 0.6 m.
   double drift = 0.0;
+  /// What moves the noise floor in real surveys (all off by default). Range-dependent gain error:
+  /// the image (echoes and noise alike) is off by this many dB per metre from mid-range, brighter
+  /// far away for a positive value (a time-varied gain that over-compensates).
+  double tvg_error_db_per_m = 0.0;
+  /// A gain change mid-survey: the second leg's images are this many dB brighter.
+  double gain_change_db = 0.0;
+  /// A second seabed type from x = 14 m on, of this reflectivity (sand is 0.45; mud 0.2, say);
+  /// negative: the same sand everywhere.
+  double second_floor_reflectivity = -1.0;
   std::uint32_t seed = 1;
   SonarNoise noise;
 };
