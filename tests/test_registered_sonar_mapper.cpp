@@ -89,6 +89,10 @@ TEST(RegisteredSonarMapper, SameSubmapsAndMapInBothModes) {
     EXPECT_EQ(sequential[i].registered, parallel[i].registered) << i;
     EXPECT_TRUE(sequential[i].correction.isApprox(parallel[i].correction, 0.0)) << i;
     ASSERT_EQ(sequential[i].integrated_poses.size(), sequential[i].pings);
+    // Every beam of every ping was projected once, as integrated.
+    EXPECT_EQ(sequential[i].beams_with_return + sequential[i].beams_without_return, sequential[i].pings * 64);
+    EXPECT_GT(sequential[i].observations, 0u);
+    EXPECT_EQ(sequential[i].observations, parallel[i].observations);
   }
   EXPECT_EQ(pings, sim.pings.size());
   EXPECT_FALSE(sequential.front().registered);  // nothing to register against yet

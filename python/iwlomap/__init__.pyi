@@ -498,6 +498,9 @@ class RegisteredSubmap:
     correction: npt.NDArray[np.float64]
     registered: bool
     match: ScanMatchResult
+    observations: int
+    beams_with_return: int
+    beams_without_return: int
     integrated_poses: list[npt.NDArray[np.float64]]
 
 class RegisteredSonarMapper:

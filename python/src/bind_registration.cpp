@@ -193,6 +193,9 @@ void bind_registration(py::module_& m) {
       .def_property_readonly("correction", [](const r::RegisteredSubmap& x) { return pose_to_numpy(x.correction); })
       .def_readonly("registered", &r::RegisteredSubmap::registered)
       .def_readonly("match", &r::RegisteredSubmap::match)
+      .def_readonly("observations", &r::RegisteredSubmap::observations)
+      .def_readonly("beams_with_return", &r::RegisteredSubmap::beams_with_return)
+      .def_readonly("beams_without_return", &r::RegisteredSubmap::beams_without_return)
       .def_property_readonly(
           "integrated_poses",
           [](const r::RegisteredSubmap& x) {

@@ -145,7 +145,10 @@ RegisteredSubmap RegisteredSonarMapper::process(Submap&& submap, State& state) {
   }
   for (const Ping& ping : submap.pings) {
     const Eigen::Isometry3d pose = out.correction * ping.nav_pose;
-    static_cast<void>(state.projector.integrate(*state.map, ping.view(), ping.geometry, pose));
+    const SonarObservations obs = state.projector.integrate(*state.map, ping.view(), ping.geometry, pose);
+    out.observations += obs.size();
+    out.beams_with_return += obs.beams_with_return;
+    out.beams_without_return += obs.beams_without_return;
     out.integrated_poses.push_back(pose);
   }
   return out;

@@ -259,15 +259,9 @@ int run_sonar(const std::vector<std::string>& argv) {
         ++count;
         accepted += submap.registered ? 1 : 0;
         for (std::size_t k = 0; k < submap.pings; ++k) integrated[submap.first_ping + k] = submap.integrated_poses[k];
-      }
-      // The projection counts of the pings at the poses they were integrated at.
-      for (std::size_t i = 0; i < pings.size(); ++i) {
-        SonarGeometry geometry = pings[i].geometry(aperture_deg * kPi / 180.0, min_range);
-        if (max_range) geometry.max_range = *max_range;
-        const SonarObservations obs = projector->project(pings[i].image_view(), geometry, integrated[i]);
-        observations += obs.size();
-        with_return += obs.beams_with_return;
-        beams += obs.beams_with_return + obs.beams_without_return;
+        observations += submap.observations;
+        with_return += submap.beams_with_return;
+        beams += submap.beams_with_return + submap.beams_without_return;
       }
       registration_summary = "registered " + std::to_string(accepted) + " of " + std::to_string(count) + " submap(s)" +
                              (accepted < count ? "; the others kept the last correction" : "");

@@ -70,6 +70,8 @@ struct RegisteredSubmap {
   bool registered = false;
   ScanMatchResult match;    ///< the registration (empty when it did not run)
   std::vector<Eigen::Isometry3d> integrated_poses;  ///< per ping: where it went into the map
+  /// The projector's counts over the submap's pings as integrated (SonarObservations).
+  std::size_t observations = 0, beams_with_return = 0, beams_without_return = 0;
 };
 
 class RegisteredSonarMapper {
