@@ -421,6 +421,38 @@ iwlomap::bench::SonarSimOptions sim_options(const Options& opt, const iwlomap::b
   return so;
 }
 
+// Whether a voxel's centre lies in the survey corridor of \p so (see the file comment).
+bool in_corridor(const VoxelKey& k, const iwlomap::bench::SonarSimOptions& so, double resolution) {
+  const Eigen::Vector3d c = iwlomap::key_to_center(k, resolution);
+  return c.x() >= so.leg_start_x && c.x() <= so.leg_end_x && std::abs(c.y()) <= kCorridorHalfWidth;
+}
+
+// One table row: noise level, what was scored, and its scores.
+std::string score_row(const std::string& noise, const std::string& name, const Score& s) {
+  char row[512];
+  std::snprintf(row, sizeof row, "| %s | %s | %zu | %.3f | %.3f | **%.3f** | %.3f | %.3f | %.3f (%g) |", noise.c_str(),
+                name.c_str(), s.occupied, s.precision, s.recall, s.f1, s.f1_exact, s.chamfer, s.best_f1,
+                s.best_threshold);
+  return row;
+}
+
+// The two tables (all voxels, corridor) and the notes under them; \p column names the second column.
+void print_tables(const std::vector<std::string> (&rows)[2], const std::vector<std::string>& notes, const char* column) {
+  const iwlomap::bench::SonarSimOptions so;
+  for (int region = 0; region < 2; ++region) {
+    if (region == 0)
+      std::printf("All voxels:\n\n");
+    else
+      std::printf("\nInside the survey corridor (x in [%g, %g] m, |y| <= %g m):\n\n", so.leg_start_x, so.leg_end_x,
+                  kCorridorHalfWidth);
+    std::printf("| noise | %s | occupied | precision | recall | F1 | F1 exact | Chamfer (m) | best F1 (at) |\n", column);
+    std::printf("|---|---|---:|---:|---:|---:|---:|---:|---:|\n");
+    for (const std::string& row : rows[region]) std::printf("%s\n", row.c_str());
+  }
+  std::printf("\n");
+  for (const std::string& n : notes) std::printf("- %s\n", n.c_str());
+}
+
 // Position (m) and rotation (degrees) between two poses.
 std::pair<double, double> pose_error(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
   const Eigen::AngleAxisd turn(a.linear().transpose() * b.linear());
@@ -533,10 +565,7 @@ int run_drift(const Options& opt, const iwlomap::SonarImageProjector& projector,
         corrected_error.add(pose_error(sim.pings[ping++].pose, pose));
     }
 
-    const auto corridor = [&](const VoxelKey& k) {
-      const Eigen::Vector3d c = key_to_center(k, opt.resolution);
-      return c.x() >= so.leg_start_x && c.x() <= so.leg_end_x && std::abs(c.y()) <= kCorridorHalfWidth;
-    };
+    const auto corridor = [&](const VoxelKey& k) { return in_corridor(k, so, opt.resolution); };
     const KeySet truth_inside = restrict_to(sim.footprint_truth, corridor);
     const KeySet visible_inside = restrict_to(sim.visible_truth, corridor);
     const std::pair<const char*, const IMapperBackend*> maps[] = {
@@ -556,11 +585,7 @@ int run_drift(const Options& opt, const iwlomap::SonarImageProjector& projector,
                                     : score(restrict_to(voxels, corridor), iwlo.occupied_threshold, probability_sweep,
                                             truth_inside, visible_inside, opt.resolution);
         f1s[region][m] = s.f1;
-        char row[512];
-        std::snprintf(row, sizeof row, "| %s | IWLO (defaults), %s | %zu | %.3f | %.3f | **%.3f** | %.3f | %.3f | %.3f (%g) |",
-                      noise.name.c_str(), maps[m].first, s.occupied, s.precision, s.recall, s.f1, s.f1_exact,
-                      s.chamfer, s.best_f1, s.best_threshold);
-        rows[region].emplace_back(row);
+        rows[region].push_back(score_row(noise.name, std::string("IWLO (defaults), ") + maps[m].first, s));
       }
     }
     const auto recovered = [&](int region, int m) {
@@ -579,14 +604,7 @@ int run_drift(const Options& opt, const iwlomap::SonarImageProjector& projector,
                   chart_registered, chart_submaps.size(), chart_error.text().c_str(), recovered(0, 3), recovered(1, 3));
     notes.emplace_back(line);
   }
-  for (int region = 0; region < 2; ++region) {
-    std::printf(region == 0 ? "All voxels:\n\n" : "\nInside the survey corridor:\n\n");
-    std::printf("| noise | map | occupied | precision | recall | F1 | F1 exact | Chamfer (m) | best F1 (at) |\n");
-    std::printf("|---|---|---:|---:|---:|---:|---:|---:|---:|\n");
-    for (const std::string& row : rows[region]) std::printf("%s\n", row.c_str());
-  }
-  std::printf("\n");
-  for (const std::string& n : notes) std::printf("- %s\n", n.c_str());
+  print_tables(rows, notes, "map");
   return 0;
 }
 #endif
@@ -664,10 +682,7 @@ int main(int argc, char** argv) {
       results.push_back({tested[i].name, probabilities(*maps[i]), tested[i].params.occupied_threshold,
                          &probability_sweep});
     if (!opt.ablation) results.push_back({"intensity average", average.averages(), kEchoThreshold, &intensity_sweep});
-    const auto corridor = [&](const VoxelKey& k) {
-      const Eigen::Vector3d c = key_to_center(k, opt.resolution);
-      return c.x() >= so.leg_start_x && c.x() <= so.leg_end_x && std::abs(c.y()) <= kCorridorHalfWidth;
-    };
+    const auto corridor = [&](const VoxelKey& k) { return in_corridor(k, so, opt.resolution); };
     std::size_t known_inside = 0;
     maps.front()->for_each_voxel([&](const VoxelKey& k, const VoxelState&) { known_inside += corridor(k) ? 1 : 0; });
     const KeySet truth_inside = restrict_to(sim.footprint_truth, corridor);
@@ -684,11 +699,7 @@ int main(int argc, char** argv) {
                                     : score(restrict_to(r.voxels, corridor), r.threshold, *r.sweep, truth_inside,
                                             visible_inside, opt.resolution);
         if (i == 0 && region == 0) visible_recall = s.visible_recall;
-        char row[512];
-        std::snprintf(row, sizeof row, "| %s | %s | %zu | %.3f | %.3f | **%.3f** | %.3f | %.3f | %.3f (%g) |",
-                      noise.name.c_str(), r.name.c_str(), s.occupied, s.precision, s.recall, s.f1, s.f1_exact,
-                      s.chamfer, s.best_f1, s.best_threshold);
-        rows[region].emplace_back(row);
+        rows[region].push_back(score_row(noise.name, r.name, s));
       }
     }
     if (!opt.dump.empty()) {
@@ -708,17 +719,6 @@ int main(int argc, char** argv) {
                   std::chrono::duration<double>(t2 - t1).count());
     notes.emplace_back(line);
   }
-  for (int region = 0; region < 2; ++region) {
-    if (region == 0)
-      std::printf("All voxels:\n\n");
-    else
-      std::printf("\nInside the survey corridor (x in [%g, %g] m, |y| <= %g m):\n\n", bench::SonarSimOptions{}.leg_start_x,
-                  bench::SonarSimOptions{}.leg_end_x, kCorridorHalfWidth);
-    std::printf("| noise | method | occupied | precision | recall | F1 | F1 exact | Chamfer (m) | best F1 (at) |\n");
-    std::printf("|---|---|---:|---:|---:|---:|---:|---:|---:|\n");
-    for (const std::string& row : rows[region]) std::printf("%s\n", row.c_str());
-  }
-  std::printf("\n");
-  for (const std::string& n : notes) std::printf("- %s\n", n.c_str());
+  print_tables(rows, notes, "method");
   return 0;
 }
