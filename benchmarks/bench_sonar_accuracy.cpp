@@ -21,6 +21,10 @@
 //                      IWLO (defaults), the first return found by an ordered-statistic CFAR
 //                      detector (near-side window, P_fa 1e-3, sonar_cfar.h) that must also
 //                      exceed the threshold of 35, instead of the threshold alone.
+//   IWLO (sonar preset) sonar_preset() (sonar_preset.h): OS-CFAR detection, the SNR weight, plain
+//                      log-odds-like evidence (+1.5 per full-weight echo, -0.8 per free
+//                      observation, clamped to [-2, 3.5], no learning-rate decay) with adaptive
+//                      scaling; occupied: p > 0.8 (its occupied_threshold).
 //   intensity average  a running weighted average of intensity per voxel, sum(W I) / sum(W) over
 //                      all observations (free ones carry the dark pixels before the echo);
 //                      occupied: the average exceeds the echo threshold (35).
@@ -41,7 +45,9 @@
 // again and no update rule can remove them.
 //
 // --ablation: heavy noise only: IWLO with one ingredient removed at a time, and plain log-odds
-//             with other increments or threshold, to show where the differences come from.
+//             with other increments or threshold, to show where the differences come from; the
+//             sonar preset with one ingredient removed at a time (the CFAR detector, the SNR
+//             weight, its evidence).
 // --scene pilings: the second scene (sonar_sim.h: a sloping floor, pier pilings, a quay wall).
 // --gain-errors: what moves the noise floor: a time-varied-gain error of 0.5 dB per metre about
 //             mid-range, the second leg 6 dB brighter, and mud (reflectivity 0.2) from x = 14 m.
@@ -66,6 +72,7 @@
 
 #include <iwlomap/probability_updater.h>
 #include <iwlomap/sonar_image_projector.h>
+#include <iwlomap/sonar_preset.h>
 #ifdef IWLOMAP_BENCH_REGISTRATION
 #include <iwlomap/registration/registered_sonar_mapper.h>
 #endif
@@ -347,8 +354,26 @@ struct Method {
   std::string name;
   iwlomap::IwloParams params;
   bool unit_weights = false;
-  int projector = 0;  // 0: the fixed-threshold projector; 1: the CFAR one
+  int projector = 0;  // index into projectors(): the fixed-threshold projector, the CFAR one, ...
 };
+
+// The projections the methods draw on, in the order Method::projector counts them.
+enum Projection { kThresholdProjection, kCfarProjection, kPresetProjection, kPresetWithoutSnrProjection };
+
+std::vector<iwlomap::SonarProjectorParams> projections(const Options& opt) {
+  using namespace iwlomap;
+  SonarProjectorParams pp;
+  pp.intensity_threshold = kEchoThreshold;
+  pp.occupied_band = opt.band;
+  pp.no_return = SonarNoReturn::kFreeToMaxRange;
+  SonarProjectorParams cp = pp;  // OS-CFAR, near-side window, P_fa 1e-3; echoes must also exceed 35
+  cp.detector = SonarDetector::kOrderedStatisticCfar;
+  SonarProjectorParams preset = sonar_preset(kEchoThreshold).projector;
+  preset.occupied_band = opt.band;
+  SonarProjectorParams without_snr = preset;
+  without_snr.snr_weight.enabled = false;
+  return {pp, cp, preset, without_snr};
+}
 
 std::vector<Method> methods(bool ablation) {
   using iwlomap::IwloParams;
@@ -374,7 +399,9 @@ std::vector<Method> methods(bool ablation) {
   out.push_back({"log-odds (OctoMap increments)", log_odds, true});
   // The detector alone: the same map, the first return found by OS-CFAR against the beam's own
   // water column instead of the fixed threshold.
-  out.push_back({"IWLO (defaults), OS-CFAR detection", iwlo, false, 1});
+  out.push_back({"IWLO (defaults), OS-CFAR detection", iwlo, false, kCfarProjection});
+  const iwlomap::SonarPreset preset = iwlomap::sonar_preset(kEchoThreshold);
+  out.push_back({"IWLO (sonar preset)", preset.map, false, kPresetProjection});
   if (ablation) {
     // Which ingredient of IWLO makes the difference: take them away one at a time, and give plain
     // log-odds IWLO's increments or threshold.
@@ -399,6 +426,21 @@ std::vector<Method> methods(bool ablation) {
     p = log_odds;
     p.log_odds_free = -2.0 * logit(0.7);  // as strong as a hit
     out.push_back({"log-odds +0.85/-0.85", p, true});
+    // The sonar preset with one ingredient taken away at a time. Without the CFAR detector there
+    // is no SNR weight either (it measures echoes against the CFAR threshold).
+    out.push_back({"sonar preset, fixed-threshold detection (so no SNR weight)", preset.map, false,
+                   kThresholdProjection});
+    out.push_back({"sonar preset without SNR weight", preset.map, false, kPresetWithoutSnrProjection});
+    p = iwlo;  // the reference evidence: increments, learning rate, clamps; sharpness 0 and p > 0.8 kept
+    p.sharpness = preset.map.sharpness;
+    p.occupied_threshold = preset.map.occupied_threshold;
+    out.push_back({"sonar preset with the reference evidence", p, false, kPresetProjection});
+    p = preset.map;
+    p.adaptive_enabled = false;
+    out.push_back({"sonar preset without adaptive scale", p, false, kPresetProjection});
+    p = preset.map;
+    p.occupied_threshold = iwlo.occupied_threshold;
+    out.push_back({"sonar preset, p > 0.7", p, false, kPresetProjection});
   }
   return out;
 }
@@ -615,14 +657,9 @@ int main(int argc, char** argv) {
   const Options opt = parse(argc, argv);
   using namespace iwlomap;
 
-  SonarProjectorParams pp;
-  pp.intensity_threshold = kEchoThreshold;
-  pp.occupied_band = opt.band;
-  pp.no_return = SonarNoReturn::kFreeToMaxRange;
-  const SonarImageProjector projector(opt.resolution, pp);
-  SonarProjectorParams cp = pp;  // OS-CFAR, near-side window, P_fa 1e-3; echoes must also exceed 35
-  cp.detector = SonarDetector::kOrderedStatisticCfar;
-  const SonarImageProjector cfar_projector(opt.resolution, cp);
+  std::vector<SonarImageProjector> projectors;
+  for (const SonarProjectorParams& p : projections(opt)) projectors.emplace_back(opt.resolution, p);
+  const SonarImageProjector& projector = projectors[kThresholdProjection];
   const std::vector<Method> tested = methods(opt.ablation);
   std::vector<double> probability_sweep, intensity_sweep;
   for (int i = 0; i <= 9; ++i) probability_sweep.push_back(0.5 + 0.05 * i);
@@ -657,13 +694,15 @@ int main(int argc, char** argv) {
     IntensityAverageMap average;
     std::size_t observations = 0;
     for (const bench::SimulatedPing& ping : sim.pings) {
-      const SonarObservations obs = projector.project(make_sonar_image_view(ping.image), sim.geometry, ping.pose);
+      // Each projection that some method uses, once per ping.
+      std::vector<SonarObservations> projected(projectors.size());
+      for (std::size_t j = 0; j < projectors.size(); ++j)
+        if (std::any_of(tested.begin(), tested.end(), [&](const Method& m) { return m.projector == static_cast<int>(j); }))
+          projected[j] = projectors[j].project(make_sonar_image_view(ping.image), sim.geometry, ping.pose);
+      const SonarObservations& obs = projected[kThresholdProjection];
       observations += obs.size();
-      SonarObservations cfar_obs;
-      if (std::any_of(tested.begin(), tested.end(), [](const Method& m) { return m.projector == 1; }))
-        cfar_obs = cfar_projector.project(make_sonar_image_view(ping.image), sim.geometry, ping.pose);
       for (std::size_t i = 0; i < tested.size(); ++i) {
-        const SonarObservations& o = tested[i].projector == 1 ? cfar_obs : obs;
+        const SonarObservations& o = projected[static_cast<std::size_t>(tested[i].projector)];
         const Eigen::VectorXd ones = Eigen::VectorXd::Ones(o.weights.size());
         maps[i]->batch_update_iwlo(o.points, o.intensities, o.is_occupied, tested[i].unit_weights ? ones : o.weights);
       }

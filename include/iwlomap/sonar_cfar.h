@@ -82,18 +82,26 @@ class SonarCfar {
 
   /// The first bin in [first, last] of a beam whose intensity at bin i is \p intensity(i) (valid
   /// for i in [0, bins)) that is a detection and whose intensity exceeds \p min_intensity; -1
-  /// when there is none. The windows reach outside [first, last] to any bin in [0, bins).
+  /// when there is none. The windows reach outside [first, last] to any bin in [0, bins). When
+  /// \p threshold_power is not null and a bin is found, it receives that bin's detection
+  /// threshold on power (see threshold()).
   template <typename Intensity>
   [[nodiscard]] int first_detection(int bins, int first, int last, Intensity&& intensity,
-                                    double min_intensity = -1.0) const {
+                                    double min_intensity = -1.0, double* threshold_power = nullptr) const {
     std::vector<double> power(static_cast<std::size_t>(bins > 0 ? bins : 0));
     for (int i = 0; i < bins; ++i) {
       const double v = intensity(i);
       power[static_cast<std::size_t>(i)] = v * v;
     }
     std::vector<double> scratch;
-    for (int i = first > 0 ? first : 0; i <= last && i < bins; ++i)
-      if (intensity(i) > min_intensity && is_detection(power, i, scratch)) return i;
+    for (int i = first > 0 ? first : 0; i <= last && i < bins; ++i) {
+      if (!(intensity(i) > min_intensity)) continue;
+      const double t = threshold(power, i, scratch);
+      if (power[static_cast<std::size_t>(i)] > t) {
+        if (threshold_power != nullptr) *threshold_power = t;
+        return i;
+      }
+    }
     return -1;
   }
 

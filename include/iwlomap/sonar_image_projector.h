@@ -138,6 +138,35 @@ enum class SonarNoReturn {
   kFreeToMaxRange  ///< the water is empty up to max_range (sonar semantics: no echo, no object)
 };
 
+/// The spread of the power of Rayleigh-amplitude noise on a decibel scale: the standard deviation
+/// of 10 log10(P) for exponentially distributed P, (pi / sqrt(6)) * 10 / ln(10) = 5.570 dB. It is
+/// how far a bin of noise alone typically strays from its mean level, whatever that level.
+constexpr double kRayleighPowerSpreadDb = 5.57004;
+
+/// A weight for each occupied observation from the strength of its echo over the detector's
+/// threshold (needs a CFAR detector). With the excess
+///   x = 10 log10(P_peak / T)  dB,
+/// P_peak the squared peak intensity of the echo band and T the CFAR threshold on power at the
+/// detected bin (the noise estimate times the factor of the false-alarm rate), the weight is
+///   w = 1 / (1 + exp(-(x - centre_db) / width_db)).
+/// Both constants come from the detector's statistics: at the default centre 0 an echo just at the
+/// threshold, which noise alone reaches with the false-alarm rate, weighs 0.5; the default width
+/// is the spread of a noise bin's power (kRayleighPowerSpreadDb), so an echo one such spread above
+/// the threshold weighs 0.73, two spreads 0.88, four 0.98. A weak echo in a bright stretch of the
+/// image (a raised noise floor) thus counts less than an echo of the same intensity in quiet
+/// water, which a fixed intensity scale cannot express.
+struct SonarSnrWeight {
+  bool enabled = false;     ///< off: occupied weights are the coverage weights alone
+  double centre_db = 0.0;   ///< excess over the threshold (dB) that weighs 0.5, finite
+  double width_db = kRayleighPowerSpreadDb;  ///< dB per e-fold of the odds, finite and > 0
+
+  /// Throws std::invalid_argument naming the first invalid value.
+  void validate() const;
+};
+
+/// The weight of SonarSnrWeight for an echo \p excess_db decibels above the detection threshold.
+[[nodiscard]] double sonar_snr_weight(double excess_db, const SonarSnrWeight& weight);
+
 struct SonarProjectorParams {
   /// A bin is an echo when its intensity exceeds this (raw units). Use the map's
   /// intensity_threshold: the map counts an occupied observation at or below its own threshold as
@@ -148,6 +177,9 @@ struct SonarProjectorParams {
   /// against the beam's local noise level (sonar_cfar.h).
   SonarDetector detector = SonarDetector::kThreshold;
   SonarCfarParams cfar;  ///< the CFAR detector's window and false-alarm rate
+  /// Weighs occupied observations by the echo's strength over the CFAR threshold (needs a CFAR
+  /// detector; off by default).
+  SonarSnrWeight snr_weight;
   /// Range step between samples along a beam, in voxels (> 0). 0.5 puts about two samples along
   /// every voxel a beam crosses, so no voxel is skipped.
   double free_sample_stride = 0.5;
@@ -191,6 +223,8 @@ struct SonarObservations {
 /// (the ping barely saw it), and one well covered gets a full one. The cap at 1 keeps one ping one
 /// observation: near the sonar many beams cross the same voxel, but adjacent beams overlap and
 /// are not independent measurements, and the IWLO learning rate assumes one update per ping.
+/// With SonarProjectorParams::snr_weight enabled, an occupied voxel's weight is further multiplied
+/// by the largest SNR weight (sonar_snr_weight()) of the echoes that claimed it.
 ///
 /// Immutable after construction; project() may run concurrently on one projector.
 class SonarImageProjector {

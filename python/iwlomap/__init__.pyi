@@ -288,6 +288,17 @@ class SonarCfar:
     def detect(self, intensities: Values) -> npt.NDArray[np.bool_]: ...
     def factor(self, n: int) -> float: ...
 
+kRayleighPowerSpreadDb: float
+
+class SonarSnrWeight:
+    enabled: bool
+    centre_db: float
+    width_db: float
+    def __init__(self, *, enabled: bool = False, centre_db: float = 0.0, width_db: float = 5.57004) -> None: ...
+    def validate(self) -> None: ...
+
+def sonar_snr_weight(excess_db: float, weight: SonarSnrWeight = ...) -> float: ...
+
 class SonarProjectorParams:
     intensity_threshold: float
     free_sample_stride: float
@@ -296,10 +307,17 @@ class SonarProjectorParams:
     no_return: SonarNoReturn
     detector: SonarDetector
     cfar: SonarCfarParams
+    snr_weight: SonarSnrWeight
     def __init__(self, *, intensity_threshold: float = 35.0, free_sample_stride: float = 0.5,
                  elevation_sample_spacing: float = 1.0, occupied_band: float = 0.0,
                  no_return: SonarNoReturn = ..., detector: SonarDetector = ...,
-                 cfar: SonarCfarParams = ...) -> None: ...
+                 cfar: SonarCfarParams = ..., snr_weight: SonarSnrWeight = ...) -> None: ...
+
+class SonarPreset:
+    map: IwloParams
+    projector: SonarProjectorParams
+
+def sonar_preset(intensity_threshold: float = 35.0) -> SonarPreset: ...
 
 class SonarObservations:
     points: npt.NDArray[np.float64]

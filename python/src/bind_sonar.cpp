@@ -6,6 +6,7 @@
 
 #include <iwlomap/oculus_reader.h>
 #include <iwlomap/sonar_image_projector.h>
+#include <iwlomap/sonar_preset.h>
 
 #include <pybind11/stl.h>
 
@@ -96,11 +97,29 @@ void bind_sonar(py::module_& m) {
           py::arg("intensities"), "Per bin of one beam (nearest first): whether it is a detection.")
       .def("factor", &SonarCfar::factor, py::arg("n"));
 
+  const SonarSnrWeight w;
+  py::class_<SonarSnrWeight>(m, "SonarSnrWeight",
+                             "Weight of an echo from its excess over the CFAR threshold (dB); needs a CFAR detector.")
+      .def(py::init([](bool enabled, double centre_db, double width_db) {
+             SonarSnrWeight s{enabled, centre_db, width_db};
+             s.validate();
+             return s;
+           }),
+           py::kw_only(), py::arg("enabled") = w.enabled, py::arg("centre_db") = w.centre_db,
+           py::arg("width_db") = w.width_db)
+      .def_readwrite("enabled", &SonarSnrWeight::enabled)
+      .def_readwrite("centre_db", &SonarSnrWeight::centre_db)
+      .def_readwrite("width_db", &SonarSnrWeight::width_db)
+      .def("validate", &SonarSnrWeight::validate);
+  m.attr("kRayleighPowerSpreadDb") = kRayleighPowerSpreadDb;
+  m.def("sonar_snr_weight", &sonar_snr_weight, py::arg("excess_db"), py::arg("weight") = SonarSnrWeight{},
+        "The weight of an echo excess_db decibels above the CFAR threshold.");
+
   const SonarProjectorParams d;
   py::class_<SonarProjectorParams>(m, "SonarProjectorParams")
       .def(py::init([](double intensity_threshold, double free_sample_stride, double elevation_sample_spacing,
                        double occupied_band, SonarNoReturn no_return, SonarDetector detector,
-                       const SonarCfarParams& cfar) {
+                       const SonarCfarParams& cfar, const SonarSnrWeight& snr_weight) {
              SonarProjectorParams p;
              p.intensity_threshold = intensity_threshold;
              p.free_sample_stride = free_sample_stride;
@@ -109,6 +128,7 @@ void bind_sonar(py::module_& m) {
              p.no_return = no_return;
              p.detector = detector;
              p.cfar = cfar;
+             p.snr_weight = snr_weight;
              p.validate();
              return p;
            }),
@@ -116,14 +136,21 @@ void bind_sonar(py::module_& m) {
            py::arg("free_sample_stride") = d.free_sample_stride,
            py::arg("elevation_sample_spacing") = d.elevation_sample_spacing,
            py::arg("occupied_band") = d.occupied_band, py::arg("no_return") = d.no_return,
-           py::arg("detector") = d.detector, py::arg("cfar") = d.cfar)
+           py::arg("detector") = d.detector, py::arg("cfar") = d.cfar, py::arg("snr_weight") = d.snr_weight)
       .def_readwrite("intensity_threshold", &SonarProjectorParams::intensity_threshold)
       .def_readwrite("free_sample_stride", &SonarProjectorParams::free_sample_stride)
       .def_readwrite("elevation_sample_spacing", &SonarProjectorParams::elevation_sample_spacing)
       .def_readwrite("occupied_band", &SonarProjectorParams::occupied_band)
       .def_readwrite("no_return", &SonarProjectorParams::no_return)
       .def_readwrite("detector", &SonarProjectorParams::detector)
-      .def_readwrite("cfar", &SonarProjectorParams::cfar);
+      .def_readwrite("cfar", &SonarProjectorParams::cfar)
+      .def_readwrite("snr_weight", &SonarProjectorParams::snr_weight);
+
+  py::class_<SonarPreset>(m, "SonarPreset", "Map and projector parameters chosen together for sonar surveys.")
+      .def_readwrite("map", &SonarPreset::map)
+      .def_readwrite("projector", &SonarPreset::projector);
+  m.def("sonar_preset", &sonar_preset, py::arg("intensity_threshold") = 35.0,
+        "The sonar preset: OS-CFAR detection, SNR weight, one echo alone not occupied (sonar_preset.h).");
 
   py::class_<SonarImageProjector>(m, "SonarImageProjector",
                                   "Turns a sonar image (range bins x beams) at a pose into IWLO observations.")

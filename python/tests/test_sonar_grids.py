@@ -116,3 +116,26 @@ def test_cfar_detection():
     obs = iwlomap.SonarImageProjector(0.1, p).project(image, geometry, np.eye(4))
     ranges = np.linalg.norm(obs.points[obs.is_occupied], axis=1)
     assert len(ranges) > 0 and np.mean(np.abs(ranges - 3.01) < 0.15) > 0.8
+
+
+def test_sonar_preset_and_snr_weight():
+    assert iwlomap.sonar_snr_weight(0.0) == pytest.approx(0.5)
+    assert iwlomap.sonar_snr_weight(iwlomap.kRayleighPowerSpreadDb) == pytest.approx(1 / (1 + np.exp(-1)), abs=1e-6)
+    with pytest.raises(ValueError, match="width_db"):
+        iwlomap.SonarSnrWeight(width_db=0.0)
+    with pytest.raises(ValueError, match="snr_weight"):
+        iwlomap.SonarProjectorParams(snr_weight=iwlomap.SonarSnrWeight(enabled=True))  # needs CFAR
+    preset = iwlomap.sonar_preset()
+    assert preset.projector.detector == iwlomap.SonarDetector.kOrderedStatisticCfar
+    assert preset.projector.snr_weight.enabled
+    assert preset.map.intensity_threshold == 35.0
+    # A strong echo at bin 150 over a quiet floor: weighted by its excess, at most 1.
+    image = np.full((200, 16), 8, dtype=np.uint8)
+    image[150, :] = 250
+    geometry = iwlomap.SonarGeometry(bearings=np.linspace(-0.2, 0.2, 16), range_resolution=0.02, max_range=4.0)
+    obs = iwlomap.SonarImageProjector(0.1, preset.projector).project(image, geometry, np.eye(4))
+    w = obs.weights[obs.is_occupied]
+    assert len(w) > 0 and np.all((w > 0) & (w <= 1))
+    plain = iwlomap.SonarProjectorParams(detector=iwlomap.SonarDetector.kOrderedStatisticCfar)
+    base = iwlomap.SonarImageProjector(0.1, plain).project(image, geometry, np.eye(4))
+    assert np.all(w <= base.weights[base.is_occupied] + 1e-12)

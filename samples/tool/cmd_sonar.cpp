@@ -12,6 +12,7 @@
 #include <iwlomap/filters/cloud_conversions.h>
 #include <iwlomap/oculus_reader.h>
 #include <iwlomap/sonar_image_projector.h>
+#include <iwlomap/sonar_preset.h>
 
 #ifdef IWLOMAP_HAVE_REGISTRATION
 #include <iwlomap/registration/registered_sonar_mapper.h>
@@ -72,6 +73,14 @@ sonar:
   --false-alarm-rate P      CFAR: probability that a bin of noise alone is an echo (default 0.001)
   --no-return free|nothing  a beam without echo: free water up to the max range (default), or
                             no evidence
+  --sonar-preset            the sonar preset (include/iwlomap/sonar_preset.h, docs/accuracy.md)
+                            instead of the reference defaults: --detector os-cfar, each echo
+                            weighted by its strength over the CFAR threshold (0.5 at the
+                            threshold, 0.88 at 11 dB above it), and the map's --sharpness 0
+                            --l-occ 3 --l-free -0.8 --decay-rate 0 --min-alpha 1 --l-min -2
+                            --l-max 3.5 --threshold 0.8: a weak echo seen once is not occupied.
+                            Options given override it (--detector threshold also turns the SNR
+                            weight off).
   --intensity-threshold I is both the echo threshold of the projection and the map's threshold.
   --no-rays does not apply: a sonar ping is always projected as above.
 
@@ -147,7 +156,7 @@ int run_sonar(const std::vector<std::string>& argv) {
                      "--false-alarm-rate"});
   auto flag_opts = map_flag_options();
   flag_opts.erase("--no-rays");
-  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--register"});
+  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--register", "--sonar-preset"});
   const Args args(argv, value_opts, flag_opts);
   if (args.flag("-h") || args.flag("--help")) {
     std::cout << kHelp << map_outputs_help() << map_options_help(/*rays=*/false);
@@ -171,8 +180,12 @@ int run_sonar(const std::vector<std::string>& argv) {
   if (register_pings) throw std::runtime_error("--register: this build has no registration layer (IWLOMAP_WITH_REGISTRATION)");
 #endif
 
-  const MapSetup setup = map_setup_from(args);
-  SonarProjectorParams params;
+  const bool use_preset = args.flag("--sonar-preset");
+  if (use_preset && args.has("--sensor"))
+    throw UsageError("--sonar-preset sets the map's parameters: leave out --sensor (the IWLO options still apply)");
+  const SonarPreset preset = sonar_preset(args.number("--intensity-threshold", IwloParams{}.intensity_threshold));
+  const MapSetup setup = use_preset ? map_setup_from(args, preset.map) : map_setup_from(args);
+  SonarProjectorParams params = use_preset ? preset.projector : SonarProjectorParams{};
   params.intensity_threshold = setup.params.intensity_threshold;
   params.free_sample_stride = args.number("--stride", params.free_sample_stride);
   params.elevation_sample_spacing = args.number("--elevation-spacing", params.elevation_sample_spacing);
@@ -184,7 +197,7 @@ int run_sonar(const std::vector<std::string>& argv) {
     params.no_return = SonarNoReturn::kNothing;
   else
     throw UsageError("--no-return must be free or nothing, got '" + no_return + "'");
-  const std::string detector = args.value("--detector").value_or("threshold");
+  const std::string detector = args.value("--detector").value_or(use_preset ? "os-cfar" : "threshold");
   if (detector == "threshold")
     params.detector = SonarDetector::kThreshold;
   else if (detector == "ca-cfar")
@@ -193,6 +206,8 @@ int run_sonar(const std::vector<std::string>& argv) {
     params.detector = SonarDetector::kOrderedStatisticCfar;
   else
     throw UsageError("--detector must be threshold, ca-cfar or os-cfar, got '" + detector + "'");
+  // The SNR weight measures echoes against the CFAR threshold: a fixed threshold has none.
+  if (params.detector == SonarDetector::kThreshold) params.snr_weight.enabled = false;
   params.cfar.false_alarm_rate = args.number("--false-alarm-rate", params.cfar.false_alarm_rate);
   if (args.value("--false-alarm-rate") && params.detector == SonarDetector::kThreshold)
     throw UsageError("--false-alarm-rate needs --detector ca-cfar or os-cfar");

@@ -49,7 +49,7 @@ map:
                             weighted by its intensity, however dark, and moved obstacles clear
                             after 7 free observations as in OctoMap; depth: as lidar with every
                             return full weight. The options below override the preset; the
-                            defaults in brackets are the sonar preset's.
+                            defaults in brackets are those of --sensor sonar.
   --threshold P             output voxels with occupancy probability > P (default )" + num(d.occupied_threshold) + R"()
   --threads N               threads for ray casting (default 1; 0 = all cores); same map for any N
   --max-memory SIZE         memory the map may hold, in bytes or with a suffix K, M, G, T (powers
@@ -113,13 +113,17 @@ std::size_t parse_memory_size(const std::string& text) {
   return static_cast<std::size_t>(value) << shift;
 }
 
-MapSetup map_setup_from(const Args& args) {
+MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base) {
   MapSetup s;
-  const std::string sensor = args.value("--sensor").value_or("sonar");
-  const auto preset = parse_sensor_preset(sensor);
-  if (!preset) throw UsageError("--sensor must be sonar, lidar or depth, got '" + sensor + "'");
-  s.sensor = *preset;
-  s.params = sensor_preset_params(*preset);
+  if (base) {
+    s.params = *base;
+  } else {
+    const std::string sensor = args.value("--sensor").value_or("sonar");
+    const auto preset = parse_sensor_preset(sensor);
+    if (!preset) throw UsageError("--sensor must be sonar, lidar or depth, got '" + sensor + "'");
+    s.sensor = *preset;
+    s.params = sensor_preset_params(*preset);
+  }
   IwloParams& p = s.params;
   p.sharpness = args.number("--sharpness", p.sharpness);
   p.decay_rate = args.number("--decay-rate", p.decay_rate);

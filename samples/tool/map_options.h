@@ -12,6 +12,7 @@
 
 #include <cstddef>
 #include <memory>
+#include <optional>
 #include <set>
 #include <string>
 
@@ -40,7 +41,9 @@ struct MapSetup {
 
 /// Builds the backend and parameters the options ask for (preset first, explicit options over it),
 /// and sets the process's map memory limit (--max-memory).
-[[nodiscard]] MapSetup map_setup_from(const Args& args);
+/// \p base: the IWLO parameters the options override instead of the --sensor preset's (then
+/// --sensor is refused).
+[[nodiscard]] MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base = std::nullopt);
 
 /// Warns on stderr that \p skipped of \p points points were left out of the map, and why: not
 /// finite, or (with ray casting) farther from the sensor origin than the longest ray.

@@ -26,6 +26,7 @@ struct Tally {
   std::uint32_t occupied_count = 0;
   double free_intensity = 0.0;      // largest intensity among the free samples
   double occupied_intensity = 0.0;  // peak intensity of the echo(es) that claimed the voxel
+  double snr_weight = 0.0;          // largest SNR weight of those echoes (1 when it is off)
 };
 
 // Evenly spaced elevations across the aperture for an arc of the given length: the arc gets
@@ -70,6 +71,17 @@ void SonarGeometry::validate(int beams) const {
     fail(what, "vertical_aperture", vertical_aperture, "must be radians in [0, pi)");
 }
 
+void SonarSnrWeight::validate() const {
+  const std::string what = "sonar SNR weight parameter";
+  if (!std::isfinite(centre_db)) fail(what, "centre_db", centre_db, "must be finite");
+  if (!(std::isfinite(width_db) && width_db > 0.0)) fail(what, "width_db", width_db, "must be finite and > 0 dB");
+}
+
+double sonar_snr_weight(double excess_db, const SonarSnrWeight& weight) {
+  if (std::isnan(excess_db)) return 0.5;
+  return 1.0 / (1.0 + std::exp(-(excess_db - weight.centre_db) / weight.width_db));
+}
+
 void SonarProjectorParams::validate() const {
   const std::string what = "sonar projector parameter";
   if (!std::isfinite(intensity_threshold)) fail(what, "intensity_threshold", intensity_threshold, "must be finite");
@@ -85,6 +97,13 @@ void SonarProjectorParams::validate() const {
       detector != SonarDetector::kOrderedStatisticCfar)
     fail(what, "detector", static_cast<double>(detector), "must be a SonarDetector");
   if (detector != SonarDetector::kThreshold) cfar.validate();
+  if (snr_weight.enabled) {
+    snr_weight.validate();
+    if (detector == SonarDetector::kThreshold)
+      throw std::invalid_argument(
+          "iwlomap: invalid sonar projector parameter snr_weight.enabled = true (the SNR weight measures an echo "
+          "against the CFAR threshold: it needs detector kCellAveragingCfar or kOrderedStatisticCfar)");
+  }
 }
 
 SonarImageProjector::SonarImageProjector(double resolution, const SonarProjectorParams& params)
@@ -179,9 +198,10 @@ SonarObservations SonarImageProjector::project(const SonarImageView& image, cons
     const double b = geometry.bearings[static_cast<std::size_t>(beam)];
     const Eigen::Vector3d ahead = rot * Eigen::Vector3d(std::cos(b), std::sin(b), 0.0);
     int hit = -1;
+    double threshold_power = 0.0;  // the CFAR threshold at the detected bin
     if (cfar_) {
       hit = cfar_->first_detection(image.range_bins, first_bin, last_bin, [&](int i) { return image.at(i, beam); },
-                                   p.intensity_threshold);
+                                   p.intensity_threshold, &threshold_power);
     } else {
       for (int bin = first_bin; bin <= last_bin; ++bin)
         if (image.at(bin, beam) > p.intensity_threshold) {
@@ -218,6 +238,9 @@ SonarObservations SonarImageProjector::project(const SonarImageView& image, cons
     double peak = 0.0;
     const int band_last = std::clamp(static_cast<int>(std::floor((r_hit + p.occupied_band) / rr)), hit, last_bin);
     for (int bin = hit; bin <= band_last; ++bin) peak = std::max(peak, image.at(bin, beam));
+    // A detection has peak^2 > threshold_power >= 0: the excess is > 0 dB (+inf, weight 1, for a zero threshold).
+    const double snr_weight =
+        p.snr_weight.enabled ? sonar_snr_weight(10.0 * std::log10(peak * peak / threshold_power), p.snr_weight) : 1.0;
     for (std::size_t m = 0; m < band_rows; ++m) {
       const double r = r_hit + static_cast<double>(m) * step;
       if (m > 0 && r > max_range) break;
@@ -226,6 +249,7 @@ SonarObservations SonarImageProjector::project(const SonarImageView& image, cons
         Tally& t = tally_at(origin + r * (ce[0] * ahead + ce[1] * down));
         ++t.occupied_count;
         t.occupied_intensity = std::max(t.occupied_intensity, peak);
+        t.snr_weight = std::max(t.snr_weight, snr_weight);
         ++out.occupied_samples;
       }
     }
@@ -246,7 +270,7 @@ SonarObservations SonarImageProjector::project(const SonarImageView& image, cons
     out.points.row(row) = key_to_center(keys[i], resolution_).transpose();
     out.is_occupied[static_cast<std::size_t>(row)] = occupied;
     out.intensities[row] = occupied ? t.occupied_intensity : t.free_intensity;
-    out.weights[row] = occupied ? std::min(1.0, t.occupied_count / expected_occupied)
+    out.weights[row] = occupied ? std::min(1.0, t.occupied_count / expected_occupied) * t.snr_weight
                                 : std::min(1.0, t.free_count / expected_free);
   }
   return out;

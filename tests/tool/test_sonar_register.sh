@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: BSD-3-Clause
-# `iwlomap sonar --register` (and `--detector`) end to end: a first simulated survey is mapped at its true poses into
+# `iwlomap sonar --register` (and `--detector`, `--sonar-preset`) end to end: a first simulated survey is mapped at its true poses into
 # a Disk map; a second survey of the same site, whose navigation drifts 1 % of the distance, is
 # registered against that map. The poses it writes must end much closer to the truth than the
 # navigation's.
@@ -46,4 +46,13 @@ if "$TOOL" sonar "$WORK/survey.raw" -o "$WORK/x.pcd" --detector ca-cfar --false-
 grep -q "false_alarm_rate = 1" "$WORK/bad.err"
 if "$TOOL" sonar "$WORK/survey.raw" -o "$WORK/x.pcd" --false-alarm-rate 0.01 2> "$WORK/bad.err"; then exit 1; fi
 grep -q "needs --detector" "$WORK/bad.err"
-echo "sonar --register and --detector: passed"
+# The sonar preset: maps the survey; a fixed-threshold detector under it drops the SNR weight;
+# --sensor is refused beside it.
+"$TOOL" sonar "$WORK/survey.raw" --poses "$WORK/survey_truth.txt" --resolution 0.1 --sonar-preset \
+  -o "$WORK/preset.pcd" | tee "$WORK/preset.out"
+grep -q " occupied (p > " "$WORK/preset.out" && test -s "$WORK/preset.pcd"
+"$TOOL" sonar "$WORK/survey.raw" --poses "$WORK/survey_truth.txt" --resolution 0.1 --sonar-preset \
+  --detector threshold -o "$WORK/preset_threshold.pcd" -q
+if "$TOOL" sonar "$WORK/survey.raw" -o "$WORK/x.pcd" --sonar-preset --sensor lidar 2> "$WORK/bad.err"; then exit 1; fi
+grep -q "leave out --sensor" "$WORK/bad.err"
+echo "sonar --register, --detector and --sonar-preset: passed"
