@@ -693,12 +693,15 @@ int main(int argc, char** argv) {
     }
     IntensityAverageMap average;
     std::size_t observations = 0;
+    // Each projection that some method uses (the fixed-threshold one always: it feeds the intensity
+    // average and the counts), once per ping.
+    std::vector<bool> used(projectors.size(), false);
+    used[kThresholdProjection] = true;
+    for (const Method& m : tested) used[static_cast<std::size_t>(m.projector)] = true;
     for (const bench::SimulatedPing& ping : sim.pings) {
-      // Each projection that some method uses, once per ping.
       std::vector<SonarObservations> projected(projectors.size());
       for (std::size_t j = 0; j < projectors.size(); ++j)
-        if (std::any_of(tested.begin(), tested.end(), [&](const Method& m) { return m.projector == static_cast<int>(j); }))
-          projected[j] = projectors[j].project(make_sonar_image_view(ping.image), sim.geometry, ping.pose);
+        if (used[j]) projected[j] = projectors[j].project(make_sonar_image_view(ping.image), sim.geometry, ping.pose);
       const SonarObservations& obs = projected[kThresholdProjection];
       observations += obs.size();
       for (std::size_t i = 0; i < tested.size(); ++i) {

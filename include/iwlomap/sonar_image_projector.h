@@ -164,7 +164,8 @@ struct SonarSnrWeight {
   void validate() const;
 };
 
-/// The weight of SonarSnrWeight for an echo \p excess_db decibels above the detection threshold.
+/// The weight of SonarSnrWeight for an echo \p excess_db decibels above the detection threshold
+/// (+infinity gives 1; NaN gives 0.5, no information either way).
 [[nodiscard]] double sonar_snr_weight(double excess_db, const SonarSnrWeight& weight);
 
 struct SonarProjectorParams {

@@ -150,7 +150,7 @@ void bind_sonar(py::module_& m) {
       .def_readwrite("map", &SonarPreset::map)
       .def_readwrite("projector", &SonarPreset::projector);
   m.def("sonar_preset", &sonar_preset, py::arg("intensity_threshold") = 35.0,
-        "The sonar preset: OS-CFAR detection, SNR weight, one echo alone not occupied (sonar_preset.h).");
+        "The sonar preset: OS-CFAR detection, SNR weight, a weak echo seen once not occupied (sonar_preset.h).");
 
   py::class_<SonarImageProjector>(m, "SonarImageProjector",
                                   "Turns a sonar image (range bins x beams) at a pose into IWLO observations.")

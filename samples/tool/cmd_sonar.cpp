@@ -183,7 +183,8 @@ int run_sonar(const std::vector<std::string>& argv) {
   const bool use_preset = args.flag("--sonar-preset");
   if (use_preset && args.has("--sensor"))
     throw UsageError("--sonar-preset sets the map's parameters: leave out --sensor (the IWLO options still apply)");
-  const SonarPreset preset = sonar_preset(args.number("--intensity-threshold", IwloParams{}.intensity_threshold));
+  // --intensity-threshold and the other IWLO options apply over the preset in map_setup_from().
+  const SonarPreset preset = sonar_preset();
   const MapSetup setup = use_preset ? map_setup_from(args, preset.map) : map_setup_from(args);
   SonarProjectorParams params = use_preset ? preset.projector : SonarProjectorParams{};
   params.intensity_threshold = setup.params.intensity_threshold;

@@ -41,8 +41,8 @@ struct MapSetup {
 
 /// Builds the backend and parameters the options ask for (preset first, explicit options over it),
 /// and sets the process's map memory limit (--max-memory).
-/// \p base: the IWLO parameters the options override instead of the --sensor preset's (then
-/// --sensor is refused).
+/// \p base: the IWLO parameters the options override instead of the --sensor preset's (--sensor is
+/// then not read: a caller passing a base refuses it).
 [[nodiscard]] MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base = std::nullopt);
 
 /// Warns on stderr that \p skipped of \p points points were left out of the map, and why: not
