@@ -10,6 +10,10 @@
 
 namespace iwlomap {
 
+namespace detail {
+struct BackendAccess;
+}  // namespace detail
+
 /// The in-memory backend. Voxels live in 8x8x8 blocks found through a hash map keyed by block
 /// coordinate; inside a block they are stored in cells of 2x2x1 voxels (32 bytes, x by y by z),
 /// allocated the first time one of their voxels is observed, so a surface costs about what it
@@ -77,6 +81,7 @@ class ProbabilityUpdater final : public BackendBase {
   size_t prune() override;
 
  private:
+  friend struct detail::BackendAccess;  // the library's own layers (the distributed mapper)
   struct Impl;
   Impl& impl();
   const Impl& impl() const;

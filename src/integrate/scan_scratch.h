@@ -99,6 +99,24 @@ class ScanScratch {
     }
   }
 
+  /// Empties the scratch (keeping its buffers), to be filled by add_free_cells() and add_hit().
+  void reset() { clear(); }
+  /// Marks free the cells of grid block \p block_key whose bits are set in \p cells (bit i of
+  /// cells[i / 64]: voxel_of(block_key, i), as for_each_free() numbers them). With add_hit(), this
+  /// rebuilds elsewhere a scratch that for_each_free() and for_each_hit() described, for the
+  /// distributed mapper: the rebuilt scratch gives the same observations.
+  void add_free_cells(const VoxelKey& block_key, const std::uint64_t (&cells)[kWordsPerBlock]) {
+    constexpr int m = kBlocksPerChunkEdge - 1;
+    constexpr int shift = kChunkShift - kBlockShift;
+    const VoxelKey ck{block_key.x >> shift, block_key.y >> shift, block_key.z >> shift};
+    if (last_ < 0 || chunks_[static_cast<std::size_t>(last_)].key != ck) last_ = static_cast<std::int64_t>(chunk(ck));
+    const int b = (block_key.x & m) | ((block_key.y & m) << 2) | ((block_key.z & m) << 4);
+    for (int w = 0; w < kWordsPerBlock; ++w)
+      chunks_[static_cast<std::size_t>(last_)].free[static_cast<std::size_t>(b * kWordsPerBlock + w)] |= cells[w];
+  }
+  /// A hit in voxel \p k (the largest intensity of several is kept).
+  void add_hit(const VoxelKey& k, double intensity);
+
   [[nodiscard]] std::size_t num_chunks() const noexcept { return chunks_.size(); }
   [[nodiscard]] const std::vector<Hit>& hits() const noexcept { return hits_; }
 
@@ -148,7 +166,6 @@ class ScanScratch {
     const std::size_t bit = bit_in_chunk(k);
     chunks_[static_cast<std::size_t>(last_)].free[bit >> 6] |= std::uint64_t{1} << (bit & 63);
   }
-  void add_hit(const VoxelKey& k, double intensity);
 
   std::vector<Chunk> chunks_;
   FlatKeyMap chunk_index_;

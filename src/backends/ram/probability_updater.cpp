@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "iwlomap/probability_updater.h"
 
+#include "backends/backend_access.h"
 #include "backends/pimpl.h"
 #include "integrate/absolute_log_odds.h"
 #include "integrate/batch_apply.h"
@@ -80,22 +81,21 @@ void ProbabilityUpdater::batch_update_iwlo(const Eigen::MatrixXd& points, const 
   m.hits.add_batch(points, intensities, is_occupied, m.updater.params().intensity_threshold);
 }
 
-void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
-                                     const Eigen::VectorXd& intensities, double max_range) {
-  Impl& m = impl();
-  detail::check_scan_input(origin, points, intensities, max_range, m.resolution);
-  const int threads = get_num_threads();
-  const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, threads);
-  const std::size_t chunks = m.scratch.num_chunks();
+namespace {
+
+// Applies a collected scan (one observation per voxel) to the grid on up to \p threads threads.
+template <class Impl>
+void apply_collected(Impl& m, const detail::ScanScratch& scratch, int threads) {
+  const std::size_t chunks = scratch.num_chunks();
   const auto t = static_cast<std::size_t>(std::min<std::size_t>(static_cast<std::size_t>(threads), chunks / 4 + 1));
-  detail::allocate_scan(m.scratch, m.grid);
+  detail::allocate_scan(scratch, m.grid);
   const auto observe = [&m](std::size_t& known) {
     return [&m, &known](detail::VoxelBlock& b, int index, const VoxelKey&, double intensity, bool occupied) {
       if (detail::observe_voxel(b, b.existing(index), intensity, occupied, 1.0, m.updater)) ++known;
     };
   };
   if (t <= 1) {
-    detail::apply_scan_free(m.scratch, m.grid, 0, chunks, observe(m.known));
+    detail::apply_scan_free(scratch, m.grid, 0, chunks, observe(m.known));
   } else {
     // Each thread updates the free voxels of its own ranges of scratch chunks. Chunks are
     // disjoint, so are their blocks: no two threads touch one voxel, and the per-voxel results
@@ -105,7 +105,7 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
     const auto work = [&](std::size_t k) {
       constexpr std::size_t kGrain = 4;
       for (std::size_t c = next.fetch_add(kGrain); c < chunks; c = next.fetch_add(kGrain))
-        detail::apply_scan_free(m.scratch, m.grid, c, std::min(c + kGrain, chunks), observe(newly_known[k]));
+        detail::apply_scan_free(scratch, m.grid, c, std::min(c + kGrain, chunks), observe(newly_known[k]));
     };
     std::vector<std::thread> workers;
     for (std::size_t k = 1; k < t; ++k) workers.emplace_back(work, k);
@@ -113,9 +113,27 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
     for (auto& w : workers) w.join();
     for (const std::size_t n : newly_known) m.known += n;
   }
-  detail::apply_scan_hits(m.scratch, m.grid, observe(m.known));
+  detail::apply_scan_hits(scratch, m.grid, observe(m.known));
+}
+
+}  // namespace
+
+void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                                     const Eigen::VectorXd& intensities, double max_range) {
+  Impl& m = impl();
+  detail::check_scan_input(origin, points, intensities, max_range, m.resolution);
+  const int threads = get_num_threads();
+  const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, threads);
+  apply_collected(m, m.scratch, threads);
   m.skipped += skip;
   m.hits.add_scan(origin, points, intensities, max_range, m.updater.params().intensity_threshold);
+}
+
+void detail::BackendAccess::apply_collected_scan(ProbabilityUpdater& map, const ScanScratch& scratch) {
+  ProbabilityUpdater::Impl& m = map.impl();
+  if (m.hits.enabled())
+    throw std::logic_error("iwlomap: a collected scan carries no points for the hit statistics; turn them off");
+  apply_collected(m, scratch, map.get_num_threads());
 }
 
 void ProbabilityUpdater::set_params(const IwloParams& params) { impl().set(params); }
