@@ -5,7 +5,7 @@
 set -euo pipefail
 
 PACKAGES=(build-essential cmake git pkg-config
-  libeigen3-dev libpcl-dev liboctomap-dev libvtk9-dev libflann-dev
+  libeigen3-dev libpcl-dev liboctomap-dev libvtk9-dev libflann-dev libopenmpi-dev openmpi-bin
   libgtest-dev libgmock-dev libbenchmark-dev
   octomap-tools pcl-tools xvfb xauth doxygen
   clang libclang-rt-14-dev

@@ -27,6 +27,12 @@
 
 namespace iwlomap::tool {
 
+#ifdef IWLOMAP_HAVE_MPI
+// cmd_map_mpi.cpp
+int run_map_mpi(const Args& args, const std::vector<std::string>& inputs, const std::optional<std::string>& output,
+                bool quiet);
+#endif
+
 namespace {
 
 const char* kHelp = R"(usage: iwlomap map [options] INPUT... [-o OUT.pcd|OUT.ply]
@@ -51,6 +57,14 @@ output:
   --register                register each file against the map so far before integrating it
                             (initial guess: its VIEWPOINT pose with the last correction; the
                             first file goes in as given); the summary lists the corrections
+  --mpi                     run on the ranks of an MPI job (mpirun -np N iwlomap map --mpi ...):
+                            file i is read and ray-cast by rank i mod N, each voxel is updated by
+                            the rank owning its tile, and the map equals the one-process map;
+                            RAM shards are 8^3 blocks; with --backend disk, --tiles DIR holds one
+                            map per rank (DIR/rank-K) and a manifest, in tiles of --tile-size
+                            (default 6.4 m). Rank 0 writes -o; --async, --register,
+                            --mean-positions, --octomap, --snapshot and --no-rays are not
+                            available, and colours are not kept
 )";
 
 }  // namespace
@@ -66,7 +80,7 @@ int run_map(const std::vector<std::string>& argv) {
   auto value_opts = map_value_options();
   value_opts.insert({"-o", "--output", "--octomap", "--snapshot"});
   auto flag_opts = map_flag_options();
-  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async", "--mean-positions", "--no-colors", "--register"});
+  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async", "--mean-positions", "--no-colors", "--register", "--mpi"});
 #ifdef IWLOMAP_HAVE_REGISTRATION
   value_opts.merge(registration_value_options());
   flag_opts.merge(registration_flag_options());
@@ -83,6 +97,13 @@ int run_map(const std::vector<std::string>& argv) {
   if (inputs.empty()) throw UsageError("no input file");
   const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
   const bool quiet = args.flag("-q") || args.flag("--quiet");
+  if (args.flag("--mpi")) {
+#ifdef IWLOMAP_HAVE_MPI
+    return run_map_mpi(args, inputs, output, quiet);
+#else
+    throw std::runtime_error("--mpi: this build has no MPI layer (IWLOMAP_WITH_MPI, Debian: libopenmpi-dev)");
+#endif
+  }
   // Every output is checked before any work and written only when all of them can be.
   OutputFiles files;
   if (output) files.add("-o", *output, {".pcd", ".ply"});

@@ -113,7 +113,7 @@ std::size_t parse_memory_size(const std::string& text) {
   return static_cast<std::size_t>(value) << shift;
 }
 
-MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base) {
+MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base, bool open_map) {
   MapSetup s;
   if (base) {
     s.params = *base;
@@ -165,7 +165,7 @@ MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base)
     // An existing map continues with its stored geometry unless the options say otherwise
     // (and then the backend reports the mismatch).
     std::error_code ec;
-    if (std::filesystem::exists(std::filesystem::path(*tiles) / "iwlomap_map.meta", ec)) {
+    if (open_map && std::filesystem::exists(std::filesystem::path(*tiles) / "iwlomap_map.meta", ec)) {
       const DiskMapInfo info = OutofcoreTileMapper::read_map_info(*tiles);
       if (!args.has("--resolution")) resolution = info.resolution;
       if (!args.has("--tile-size")) options.tile_size = info.tile_size;
@@ -180,6 +180,11 @@ MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base)
   const auto max_memory = args.value("--max-memory");
   s.memory_limit = max_memory ? parse_memory_size(*max_memory) : default_memory_limit();
   set_map_memory_limit(s.memory_limit);
+  s.backend = backend;
+  s.backend_options = options;
+  s.resolution = resolution;
+  s.threads = static_cast<int>(threads);
+  if (!open_map) return s;
   s.map = make_backend(backend, resolution, options);
   s.map->set_params(p);
   s.map->set_num_threads(static_cast<int>(threads));

@@ -25,6 +25,11 @@ struct MapSetup {
   bool ray_casting = true;
   double max_range = -1.0;
   std::size_t memory_limit = 0;  // bytes (set_map_memory_limit()); 0: none
+  // What the options chose, for a caller that builds its own map (--mpi).
+  std::string backend;            // "ram", "disk" or "octomap"
+  BackendOptions backend_options;
+  double resolution = 0.05;
+  int threads = 1;
 };
 
 [[nodiscard]] std::set<std::string> map_value_options();
@@ -42,8 +47,10 @@ struct MapSetup {
 /// Builds the backend and parameters the options ask for (preset first, explicit options over it),
 /// and sets the process's map memory limit (--max-memory).
 /// \p base: the IWLO parameters the options override instead of the --sensor preset's (--sensor is
-/// then not read: a caller passing a base refuses it).
-[[nodiscard]] MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base = std::nullopt);
+/// then not read: a caller passing a base refuses it). With \p open_map false the map is not
+/// built (MapSetup::map stays empty): the caller builds it from the recorded choices.
+[[nodiscard]] MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base = std::nullopt,
+                                      bool open_map = true);
 
 /// Warns on stderr that \p skipped of \p points points were left out of the map, and why: not
 /// finite, or (with ray casting) farther from the sensor origin than the longest ray.

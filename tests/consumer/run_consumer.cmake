@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: BSD-3-Clause
-# Builds and runs tests/consumer/project (CONSUMER = core | octomap | filters | viewer) against
+# Builds and runs tests/consumer/project (CONSUMER = core | octomap | filters | viewer | mpi) against
 # iwlomap found the documented way:
 #   MODE=install     the build tree BUILD_DIR installed into WORK/prefix first
 #   MODE=build-tree  the build tree itself

@@ -1,0 +1,141 @@
+// SPDX-License-Identifier: BSD-3-Clause
+// `iwlomap map --mpi`: the map command on the ranks of an MPI job (iwlomap::mpi::DistributedMapper).
+
+#include "args.h"
+#include "cloud_io.h"
+#include "commands.h"
+#include "map_options.h"
+#include "output_files.h"
+#include "progress.h"
+
+#include <iwlomap/filters/cloud_conversions.h>
+#include <iwlomap/mpi/distributed_mapper.h>
+
+#include <chrono>
+#include <cstdint>
+#include <filesystem>
+#include <iostream>
+#include <optional>
+
+namespace iwlomap::tool {
+
+namespace {
+
+// MPI is initialised here (the tool without --mpi never touches it) and finalised on return.
+class MpiSession {
+ public:
+  MpiSession() {
+    int initialised = 0;
+    MPI_Initialized(&initialised);
+    if (!initialised) MPI_Init(nullptr, nullptr);
+  }
+  ~MpiSession() {
+    int finalised = 0;
+    MPI_Finalized(&finalised);
+    if (!finalised) MPI_Finalize();
+  }
+  MpiSession(const MpiSession&) = delete;
+  MpiSession& operator=(const MpiSession&) = delete;
+};
+
+}  // namespace
+
+int run_map_mpi(const Args& args, const std::vector<std::string>& inputs, const std::optional<std::string>& output,
+                bool quiet) {
+  for (const char* refused : {"--async", "--register", "--mean-positions", "--octomap", "--snapshot", "--no-rays"})
+    if (args.has(refused)) throw UsageError(std::string(refused) + " is not available with --mpi");
+  MpiSession session;
+  int rank = 0;
+  int ranks = 1;
+  MPI_Comm_rank(MPI_COMM_WORLD, &rank);
+  MPI_Comm_size(MPI_COMM_WORLD, &ranks);
+  // A rank that fails on its own (a file it cannot read, an output it cannot write) ends the job:
+  // the others would wait for it forever. mpirun reports the abort.
+  try {
+    const MapSetup setup = map_setup_from(args, std::nullopt, /*open_map=*/false);
+    if (setup.backend == "octomap") throw UsageError("--mpi maps on ram or disk shards, not octomap");
+    mpi::DistributedOptions options;
+    options.backend = setup.backend;
+    options.threads = std::max(1, setup.threads);
+    double resolution = setup.resolution;
+    if (setup.backend == "disk") {
+      options.directory = setup.backend_options.directory;
+      options.cache_tiles = setup.backend_options.cache_tiles;
+      options.tile_size = args.has("--tile-size") ? setup.backend_options.tile_size : 0.0;  // 0: the default
+      // A distributed map continues with its stored geometry unless the options say otherwise.
+      std::error_code ec;
+      if (std::filesystem::exists(std::filesystem::path(options.directory) / mpi::kManifestName, ec)) {
+        const mpi::DistributedManifest m = mpi::read_manifest(options.directory);
+        if (!args.has("--resolution")) resolution = m.resolution;
+        if (!args.has("--tile-size")) options.tile_size = m.tile_size;
+      }
+    }
+    OutputFiles files;
+    if (output && rank == 0) files.add("-o", *output, {".pcd", ".ply"});
+
+    const auto started = std::chrono::steady_clock::now();
+    mpi::DistributedMapper map(MPI_COMM_WORLD, resolution, setup.params, options);
+    std::uint64_t points = 0;
+    {
+      // Round robin: file i on rank i mod N in round i / N, so the map keeps the files' order.
+      const std::size_t rounds = (inputs.size() + static_cast<std::size_t>(ranks) - 1) / static_cast<std::size_t>(ranks);
+      Progress progress("mapping (" + std::to_string(ranks) + " ranks)", inputs.size(), !quiet && rank == 0);
+      for (std::size_t round = 0; round < rounds; ++round) {
+        const std::size_t i = round * static_cast<std::size_t>(ranks) + static_cast<std::size_t>(rank);
+        if (i < inputs.size()) {
+          const LoadedCloud in = load_cloud(inputs[i], static_cast<float>(setup.params.intensity_max));
+          points += in.cloud->size();
+          Eigen::MatrixXd xyz;
+          Eigen::VectorXd intensity;
+          cloud_to_matrices(*in.cloud, nullptr, setup.params.intensity_max, xyz, intensity);
+          map.insert_scan(in.cloud->sensor_origin_.head<3>().cast<double>(), xyz, intensity, setup.max_range);
+        } else {
+          map.pass();
+        }
+        progress.update(std::min(inputs.size(), (round + 1) * static_cast<std::size_t>(ranks)));
+      }
+    }
+    map.flush();
+    const double threshold = setup.params.occupied_threshold;
+    const Eigen::MatrixXd voxels = map.gather_occupied_voxels(threshold, 0);
+    const std::size_t known = map.num_nodes();
+    const std::size_t skipped = map.num_skipped_points();
+    std::uint64_t all_points = 0, sent = 0;
+    const std::uint64_t mine_sent = map.stats().bytes_sent;
+    MPI_Reduce(&points, &all_points, 1, MPI_UINT64_T, MPI_SUM, 0, MPI_COMM_WORLD);
+    MPI_Reduce(&mine_sent, &sent, 1, MPI_UINT64_T, MPI_SUM, 0, MPI_COMM_WORLD);
+    if (rank != 0) return 0;
+    if (skipped > 0) warn_skipped_points("map", skipped, static_cast<std::size_t>(all_points), resolution, true);
+    if (output) {
+      pcl::PointCloud<pcl::PointXYZI> occupied;
+      voxels_to_cloud(voxels, occupied);
+      save_cloud(files.temporary(*output), occupied, *output);
+      files.commit();
+    }
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+    if (!quiet) {
+      std::cout << "mapped " << inputs.size() << " file(s), " << all_points << " points (" << skipped << " skipped) at "
+                << resolution << " m on " << ranks << " rank(s), " << (setup.backend == "disk" ? "Disk" : "RAM")
+                << " shards of " << map.tile_voxels() << " voxels, " << sensor_preset_name(setup.sensor)
+                << " preset: " << known << " known voxels, " << voxels.rows() << " occupied (p > " << threshold
+                << "); " << sent << " bytes of observations sent between ranks, in " << seconds << " s\n";
+      for (const std::string& written : files.paths()) std::cout << "wrote " << written << "\n";
+    }
+    return 0;
+  } catch (const UsageError&) {
+    // Every rank reads the same options, so every rank is here: rank 0 reports it.
+    if (rank == 0) throw;
+    return 2;
+  } catch (const mpi::DistributedError&) {
+    // Every rank has it (naming the rank that failed): rank 0 reports it.
+    if (rank == 0) throw;
+    return 1;
+  } catch (const std::exception& e) {
+    if (ranks == 1) throw;
+    std::cerr << "iwlomap map: rank " << rank << ": error: " << e.what() << "\n";
+    MPI_Abort(MPI_COMM_WORLD, 1);
+  }
+  return 1;
+}
+
+}  // namespace iwlomap::tool

@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# SPDX-License-Identifier: BSD-3-Clause
+# `iwlomap map --mpi` under mpirun: the occupied voxels of 1, 2 and 3 ranks (RAM and Disk shards)
+# are those of the one-process `iwlomap map`; a file one rank cannot read ends the job naming it.
+# usage: test_map_mpi.sh MPIEXEC IWLOMAP WORKDIR
+set -u
+mpiexec=$1 tool=$2 work=$3
+run() { "$mpiexec" --oversubscribe --allow-run-as-root "$@"; }
+fail() { echo "FAIL: $*"; exit 1; }
+rm -rf "$work" && mkdir -p "$work" || exit 1
+scans=()
+for i in 0 1 2 3 4; do
+  "$tool" generate -o "$work/scan$i.pcd" --rings 16 --columns 256 --seed $((i + 1)) --height "1.$((2 * i))" >/dev/null \
+    || fail "generate scan $i"
+  scans+=("$work/scan$i.pcd")
+done
+opts=(--sensor lidar --resolution 0.2 --threshold 0.6)
+"$tool" map "${scans[@]}" "${opts[@]}" -q -o "$work/one.pcd" || fail "one-process map"
+run -np 2 "$tool" map --mpi "${scans[@]}" "${opts[@]}" -o "$work/two.pcd" | tee "$work/two.log" || fail "2 ranks"
+grep -q "on 2 rank(s)" "$work/two.log" || fail "the summary does not name 2 ranks"
+run -np 3 "$tool" map --mpi "${scans[@]}" "${opts[@]}" --backend disk --tiles "$work/tiles" -q -o "$work/three.pcd" \
+  || fail "3 ranks, disk"
+test -f "$work/tiles/iwlomap_distributed.manifest" && test -d "$work/tiles/rank-2" || fail "no distributed directory"
+# The same voxels and probabilities, whatever the order of the rows.
+/usr/bin/python3 - "$work/one.pcd" "$work/two.pcd" "$work/three.pcd" <<'PY' || fail "the maps differ"
+import sys
+import numpy as np
+def voxels(path):
+    data = open(path, "rb").read()
+    head, _, body = data.partition(b"DATA binary\n")
+    fields = dict(line.split(None, 1) for line in head.decode().splitlines() if line and not line.startswith("#"))
+    names, sizes = fields["FIELDS"].split(), [int(s) for s in fields["SIZE"].split()]
+    rows = np.frombuffer(body, dtype=np.uint8).reshape(int(fields["POINTS"]), sum(sizes))
+    cols = {}
+    off = 0
+    for n, s in zip(names, sizes):
+        cols[n] = rows[:, off:off + s].copy().view(np.float32)[:, 0] if s == 4 else None
+        off += s
+    v = np.stack([cols["x"], cols["y"], cols["z"], cols["intensity"]], axis=1)
+    return v[np.lexsort(v.T[::-1])]
+one = voxels(sys.argv[1])
+assert len(one) > 1000, len(one)
+for other in sys.argv[2:]:
+    o = voxels(other)
+    assert o.shape == one.shape and np.array_equal(o, one), (other, o.shape, one.shape)
+print("same", len(one), "occupied voxels")
+PY
+# A file that rank 1 cannot read: the job ends (no hang), non-zero, naming rank 1 and the file.
+out=$(timeout 120 "$mpiexec" --oversubscribe --allow-run-as-root -np 2 "$tool" map --mpi "${scans[0]}" "$work/missing.pcd" \
+      "${opts[@]}" -q -o "$work/bad.pcd" 2>&1)
+rc=$?
+echo "$out"
+[ $rc -ne 0 ] && [ $rc -ne 124 ] || fail "exit code $rc"
+echo "$out" | grep -q "rank 1: error: .*missing.pcd" || fail "the error does not name rank 1 and the file"
+test ! -e "$work/bad.pcd" || fail "an output was written"
+echo "ok"
