@@ -62,9 +62,10 @@ output:
                             the rank owning its tile, and the map equals the one-process map;
                             RAM shards are 8^3 blocks; with --backend disk, --tiles DIR holds one
                             map per rank (DIR/rank-K) and a manifest, in tiles of --tile-size
-                            (default 6.4 m). Rank 0 writes -o; --async, --register,
-                            --mean-positions, --octomap, --snapshot and --no-rays are not
-                            available, and colours are not kept
+                            (default 6.4 m). Rank 0 writes the outputs (for --octomap and
+                            --snapshot it gathers the whole map); --async, --register,
+                            --mean-positions and --no-rays are not available, and colours are
+                            not kept
 )";
 
 }  // namespace

@@ -5,6 +5,7 @@
 #include "cloud_io.h"
 #include "commands.h"
 #include "map_options.h"
+#include "map_outputs.h"
 #include "output_files.h"
 #include "progress.h"
 
@@ -12,6 +13,7 @@
 #include <iwlomap/mpi/distributed_mapper.h>
 
 #include <chrono>
+#include <exception>
 #include <cstdint>
 #include <filesystem>
 #include <iostream>
@@ -42,7 +44,7 @@ class MpiSession {
 
 int run_map_mpi(const Args& args, const std::vector<std::string>& inputs, const std::optional<std::string>& output,
                 bool quiet) {
-  for (const char* refused : {"--async", "--register", "--mean-positions", "--octomap", "--snapshot", "--no-rays"})
+  for (const char* refused : {"--async", "--register", "--mean-positions", "--no-rays"})
     if (args.has(refused)) throw UsageError(std::string(refused) + " is not available with --mpi");
   MpiSession session;
   int rank = 0;
@@ -70,8 +72,30 @@ int run_map_mpi(const Args& args, const std::vector<std::string>& inputs, const 
         if (!args.has("--tile-size")) options.tile_size = m.tile_size;
       }
     }
+    // The outputs are rank 0's: it checks them before any work, and every rank learns the verdict
+    // (a rank 0 that stopped alone would leave the others waiting in the first collective call).
     OutputFiles files;
-    if (output && rank == 0) files.add("-o", *output, {".pcd", ".ply"});
+    MapOutputs extra;
+    int verdict = 0;  // 0 ok, else the exit code
+    std::exception_ptr failure;
+    if (rank == 0) {
+      try {
+        if (output) files.add("-o", *output, {".pcd", ".ply"});
+        extra = map_outputs_from(args, files);
+      } catch (const UsageError&) {
+        failure = std::current_exception();
+        verdict = 2;
+      } catch (const std::exception&) {
+        failure = std::current_exception();
+        verdict = 1;
+      }
+    }
+    MPI_Bcast(&verdict, 1, MPI_INT, 0, MPI_COMM_WORLD);
+    if (verdict != 0) {
+      if (rank == 0) std::rethrow_exception(failure);
+      return verdict;
+    }
+    const bool whole_map = args.has("--octomap") || args.has("--snapshot");
 
     const auto started = std::chrono::steady_clock::now();
     mpi::DistributedMapper map(MPI_COMM_WORLD, resolution, setup.params, options);
@@ -98,6 +122,8 @@ int run_map_mpi(const Args& args, const std::vector<std::string>& inputs, const 
     map.flush();
     const double threshold = setup.params.occupied_threshold;
     const Eigen::MatrixXd voxels = map.gather_occupied_voxels(threshold, 0);
+    // --octomap and --snapshot: the whole map gathered on rank 0 into a RAM map (its log-odds).
+    const auto gathered = whole_map ? map.gather_voxels(0) : std::vector<std::pair<VoxelKey, VoxelState>>{};
     const std::size_t known = map.num_nodes();
     const std::size_t skipped = map.num_skipped_points();
     std::uint64_t all_points = 0, sent = 0;
@@ -110,8 +136,20 @@ int run_map_mpi(const Args& args, const std::vector<std::string>& inputs, const 
       pcl::PointCloud<pcl::PointXYZI> occupied;
       voxels_to_cloud(voxels, occupied);
       save_cloud(files.temporary(*output), occupied, *output);
-      files.commit();
     }
+    if (whole_map) {
+      const auto whole = make_backend("RAM", resolution);
+      whole->set_params(setup.params);
+      Eigen::MatrixXd centres(static_cast<Eigen::Index>(gathered.size()), 3);
+      Eigen::VectorXd log_odds(static_cast<Eigen::Index>(gathered.size()));
+      for (std::size_t i = 0; i < gathered.size(); ++i) {
+        centres.row(static_cast<Eigen::Index>(i)) = key_to_center(gathered[i].first, resolution).transpose();
+        log_odds[static_cast<Eigen::Index>(i)] = gathered[i].second.log_odds;
+      }
+      whole->set_log_odds(centres, log_odds);
+      write_map_outputs(extra, files, *whole, threshold);
+    }
+    files.commit();
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
     if (!quiet) {
       std::cout << "mapped " << inputs.size() << " file(s), " << all_points << " points (" << skipped << " skipped) at "

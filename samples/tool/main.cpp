@@ -62,6 +62,12 @@ int main(int argc, char** argv) {
 #ifdef IWLOMAP_HAVE_VIEWER
                 << ", viewer"
 #endif
+#ifdef IWLOMAP_HAVE_REGISTRATION
+                << ", registration"
+#endif
+#ifdef IWLOMAP_HAVE_MPI
+                << ", mpi"
+#endif
                 << ")\n";
       return 0;
     }

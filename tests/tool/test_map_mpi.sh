@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: BSD-3-Clause
-# `iwlomap map --mpi` under mpirun: the occupied voxels of 1, 2 and 3 ranks (RAM and Disk shards)
-# are those of the one-process `iwlomap map`; a file one rank cannot read ends the job naming it.
+# `iwlomap map --mpi` under mpirun: the occupied voxels of 2 and 3 ranks (RAM and Disk shards)
+# and the .ot file are those of the one-process `iwlomap map`; a bad output ends every rank with
+# the usage code; a file one rank cannot read ends the job naming it.
 # usage: test_map_mpi.sh MPIEXEC IWLOMAP WORKDIR
 set -u
 mpiexec=$1 tool=$2 work=$3
@@ -17,6 +18,16 @@ done
 opts=(--sensor lidar --resolution 0.2 --threshold 0.6)
 "$tool" map "${scans[@]}" "${opts[@]}" -q -o "$work/one.pcd" || fail "one-process map"
 run -np 2 "$tool" map --mpi "${scans[@]}" "${opts[@]}" -o "$work/two.pcd" | tee "$work/two.log" || fail "2 ranks"
+# --octomap gathers the whole map on rank 0: the file is byte for byte the one-process one.
+if "$tool" --version | grep -qi octomap; then
+  "$tool" map "${scans[@]}" "${opts[@]}" -q --octomap "$work/one.ot" || fail "one-process .ot"
+  run -np 2 "$tool" map --mpi "${scans[@]}" "${opts[@]}" -q --octomap "$work/two.ot" || fail "2 ranks, .ot"
+  cmp "$work/one.ot" "$work/two.ot" || fail "the .ot files differ"
+fi
+# An output rank 0 refuses ends every rank at once (no rank left waiting), with the usage code.
+out=$(timeout 60 "$mpiexec" --oversubscribe --allow-run-as-root -np 2 "$tool" map --mpi "${scans[@]}" -o "$work/bad.txt" 2>&1)
+rc=$?
+[ $rc -eq 2 ] || { echo "$out"; fail "a bad output: exit code $rc, expected 2"; }
 grep -q "on 2 rank(s)" "$work/two.log" || fail "the summary does not name 2 ranks"
 run -np 3 "$tool" map --mpi "${scans[@]}" "${opts[@]}" --backend disk --tiles "$work/tiles" -q -o "$work/three.pcd" \
   || fail "3 ranks, disk"
