@@ -137,8 +137,8 @@ int owner_of_tile(const VoxelKey& tile, int ranks) noexcept {
   return static_cast<int>(h % static_cast<std::uint64_t>(ranks));
 }
 
-// On the wire, per destination: three counts (free blocks, hits, ordered records) and then the
-// three sections. A scan's free voxels travel as 8^3 blocks with a 512-bit mask (80 bytes for up
+// On the wire, per destination: three counts (free blocks, hits, ordered records), the kind of the
+// sender's part of the round and a scan part's origin and max_range, then the three sections. A scan's free voxels travel as 8^3 blocks with a 512-bit mask (80 bytes for up
 // to 512 voxels; a ray-cast block holds tens of free voxels, so this is several times smaller than
 // a record per voxel); its hits and a batch's observations as records, a batch's in call order.
 struct DistributedMapper::Record {
@@ -151,12 +151,17 @@ struct DistributedMapper::FreeBlock {
   std::int32_t unused;
   std::uint64_t cells[8];  // bit i: voxel_of(block, i) is free
 };
+// What a rank contributes to a round; every owner gets the kind, also with nothing else.
+enum class DistributedMapper::Kind : std::uint64_t { kScan = 0, kBatch = 1, kPass = 2, kScanPart = 3 };
 struct DistributedMapper::Outgoing {
+  Kind kind = Kind::kPass;
+  double origin[3] = {0.0, 0.0, 0.0};  // a scan part's origin and max_range, which all parts share
+  double max_range = 0.0;
   std::vector<FreeBlock> blocks;
   std::vector<Record> hits;
   std::vector<Record> records;
   [[nodiscard]] std::uint64_t bytes() const noexcept {
-    return 3 * sizeof(std::uint64_t) + blocks.size() * sizeof(FreeBlock) + (hits.size() + records.size()) * sizeof(Record);
+    return 4 * sizeof(std::uint64_t) + 4 * sizeof(double) + blocks.size() * sizeof(FreeBlock) + (hits.size() + records.size()) * sizeof(Record);
   }
 };
 
@@ -224,8 +229,25 @@ double seconds_since(std::chrono::steady_clock::time_point t) {
 
 void DistributedMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                     const Eigen::VectorXd& intensities, double max_range) {
+  cast_and_apply(origin, points, intensities, max_range, Kind::kScan);
+}
+
+void DistributedMapper::insert_scan_part(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                                         const Eigen::VectorXd& intensities, double max_range) {
+  cast_and_apply(origin, points, intensities, max_range, Kind::kScanPart);
+}
+
+void DistributedMapper::cast_and_apply(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                                       const Eigen::VectorXd& intensities, double max_range, Kind kind) {
   const auto started = std::chrono::steady_clock::now();
   std::vector<Outgoing> outgoing(static_cast<std::size_t>(size_));
+  for (Outgoing& o : outgoing) {
+    o.kind = kind;
+    o.origin[0] = origin.x();
+    o.origin[1] = origin.y();
+    o.origin[2] = origin.z();
+    o.max_range = max_range;
+  }
   std::size_t skipped = 0;
   const std::string error = attempt([&] {
     detail::check_scan_input(origin, points, intensities, max_range, resolution_);
@@ -259,6 +281,7 @@ void DistributedMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::
 void DistributedMapper::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                                           const std::vector<bool>& is_occupied) {
   std::vector<Outgoing> outgoing(static_cast<std::size_t>(size_));
+  for (Outgoing& o : outgoing) o.kind = Kind::kBatch;
   std::size_t skipped = 0;
   const std::string error = attempt([&] {
     skipped = detail::validate_batch(points, intensities, is_occupied, nullptr, resolution_);
@@ -311,9 +334,12 @@ void DistributedMapper::exchange_and_apply(std::vector<Outgoing>& outgoing) {
   for (std::size_t r = 0; r < n; ++r) {
     Outgoing& o = outgoing[r];
     std::size_t at = static_cast<std::size_t>(sd[r]);
-    const std::uint64_t counts[3] = {o.blocks.size(), o.hits.size(), o.records.size()};
+    const std::uint64_t counts[4] = {o.blocks.size(), o.hits.size(), o.records.size(), static_cast<std::uint64_t>(o.kind)};
     std::memcpy(send.data() + at, counts, sizeof counts);
     at += sizeof counts;
+    const double where[4] = {o.origin[0], o.origin[1], o.origin[2], o.max_range};
+    std::memcpy(send.data() + at, where, sizeof where);
+    at += sizeof where;
     put(send, at, o.blocks);
     put(send, at, o.hits);
     put(send, at, o.records);
@@ -325,15 +351,60 @@ void DistributedMapper::exchange_and_apply(std::vector<Outgoing>& outgoing) {
   const auto received = std::chrono::steady_clock::now();
   stats_.exchange_seconds += std::chrono::duration<double>(received - started).count();
 
-  // The sources in rank order (= scan order); each source's free voxels, hits, then records (a
-  // source sends a scan or a batch, so at most one of the two kinds). Applied in batches of kRows.
+  // The sources in rank order (= scan order). A scan is rebuilt into a scan scratch (its free
+  // blocks, its hits) and applied; a round of scan parts merges every source into one scratch
+  // first (OR of the free bits, the largest intensity per hit voxel, occupied over free: the
+  // per-scan rule across the parts), then applies it once; a batch's records go in order.
   agree(comm_, rank_, attempt([&] {
+          struct Source {
+            const char* blocks;
+            const char* hits;
+            const char* records;
+            std::uint64_t n_blocks, n_hits, n_records;
+            Kind kind;
+            double where[4];  // a scan part's origin and max_range
+          };
+          std::vector<Source> sources(n);
+          bool parts = false, wholes = false;
+          for (std::size_t r = 0; r < n; ++r) {
+            const char* at = recv.data() + rd[r];
+            std::uint64_t counts[4];
+            std::memcpy(counts, at, sizeof counts);
+            at += sizeof counts;
+            std::memcpy(sources[r].where, at, sizeof sources[r].where);
+            at += sizeof sources[r].where;
+            Source& src = sources[r];
+            src.blocks = at;
+            src.hits = at + counts[0] * sizeof(FreeBlock);
+            src.records = src.hits + counts[1] * sizeof(Record);
+            src.n_blocks = counts[0];
+            src.n_hits = counts[1];
+            src.n_records = counts[2];
+            src.kind = static_cast<Kind>(counts[3]);
+            parts = parts || src.kind == Kind::kScanPart;
+            wholes = wholes || src.kind == Kind::kScan || src.kind == Kind::kBatch;
+          }
+          if (parts && wholes)
+            throw std::logic_error("iwlomap::mpi: in one round some ranks called insert_scan_part() and others "
+                                   "insert_scan() or batch_update_iwlo(); a round holds one kind (pass() goes with any)");
+          // Every owner sees every part's origin: all reach the same verdict.
+          const Source* first = nullptr;
+          for (const Source& src : sources) {
+            if (src.kind != Kind::kScanPart) continue;
+            if (first == nullptr) first = &src;
+            for (int i = 0; i < 4; ++i)
+              if (!(src.where[i] == first->where[i]))
+                throw std::invalid_argument(std::string("iwlomap::mpi: insert_scan_part(): the ranks passed different ") +
+                                            (i < 3 ? "origins" : "max_range values") +
+                                            "; one scan's parts share its origin and max_range");
+          }
+
           constexpr Eigen::Index kRows = Eigen::Index{1} << 18;
           Eigen::MatrixXd rows(kRows, 3);
           Eigen::VectorXd values(kRows);
           std::vector<bool> flags(static_cast<std::size_t>(kRows));
           Eigen::Index used = 0;
-          const auto apply = [&] {
+          const auto flush_rows = [&] {
             if (used == kRows)
               local_->batch_update_iwlo(rows, values, flags);
             else if (used > 0)
@@ -345,47 +416,55 @@ void DistributedMapper::exchange_and_apply(std::vector<Outgoing>& outgoing) {
             rows.row(used) = key_to_center(k, resolution_).transpose();
             values[used] = intensity;
             flags[static_cast<std::size_t>(used)] = occupied;
-            if (++used == kRows) apply();
+            if (++used == kRows) flush_rows();
           };
-          auto* ram = dynamic_cast<ProbabilityUpdater*>(local_.get());
-          for (std::size_t r = 0; r < n; ++r) {
-            const char* at = recv.data() + rd[r];
-            std::uint64_t counts[3];
-            std::memcpy(counts, at, sizeof counts);
-            at += sizeof counts;
-            if (ram != nullptr && counts[2] == 0) {
-              // A scan's observations on a RAM shard: rebuilt into a scan scratch and applied by
-              // the backend's own scan path, which is about 3x faster than one batch row per
-              // voxel and gives the same voxels (one observation per voxel either way).
-              apply();
-              scratch_->reset();
-              for (std::uint64_t i = 0; i < counts[0]; ++i, at += sizeof(FreeBlock)) {
-                FreeBlock b;
-                std::memcpy(&b, at, sizeof b);
-                scratch_->add_free_cells({b.x, b.y, b.z}, b.cells);
-              }
-              for (std::uint64_t i = 0; i < counts[1]; ++i, at += sizeof(Record)) {
-                Record rec;
-                std::memcpy(&rec, at, sizeof rec);
-                scratch_->add_hit({rec.x, rec.y, rec.z}, rec.intensity);
-              }
-              detail::BackendAccess::apply_collected_scan(*ram, *scratch_);
-              continue;
-            }
-            for (std::uint64_t i = 0; i < counts[0]; ++i, at += sizeof(FreeBlock)) {
+          const auto add_to_scratch = [&](const Source& src) {
+            for (std::uint64_t i = 0; i < src.n_blocks; ++i) {
               FreeBlock b;
-              std::memcpy(&b, at, sizeof b);
-              for (int w = 0; w < 8; ++w)
-                for (std::uint64_t bits = b.cells[w]; bits != 0; bits &= bits - 1)
-                  add(detail::voxel_of({b.x, b.y, b.z}, w * 64 + __builtin_ctzll(bits)), 0.0, false);
+              std::memcpy(&b, src.blocks + i * sizeof(FreeBlock), sizeof b);
+              scratch_->add_free_cells({b.x, b.y, b.z}, b.cells);
             }
-            for (std::uint64_t i = 0; i < counts[1] + counts[2]; ++i, at += sizeof(Record)) {
+            for (std::uint64_t i = 0; i < src.n_hits; ++i) {
               Record rec;
-              std::memcpy(&rec, at, sizeof rec);
-              add({rec.x, rec.y, rec.z}, rec.intensity, rec.occupied != 0);
+              std::memcpy(&rec, src.hits + i * sizeof(Record), sizeof rec);
+              scratch_->add_hit({rec.x, rec.y, rec.z}, rec.intensity);
+            }
+          };
+          // A RAM shard applies a scratch through the backend's own scan path (about 3x faster
+          // than a batch row per voxel, the same voxels); another backend gets its rows.
+          auto* ram = dynamic_cast<ProbabilityUpdater*>(local_.get());
+          const auto apply_scratch = [&] {
+            if (ram != nullptr) {
+              detail::BackendAccess::apply_collected_scan(*ram, *scratch_);
+              return;
+            }
+            scratch_->for_each_free(0, scratch_->num_chunks(), [&](const VoxelKey& block_key, int index) {
+              add(detail::voxel_of(block_key, index), 0.0, false);
+            });
+            scratch_->for_each_hit([&](const VoxelKey& key, double intensity) { add(key, intensity, true); });
+            flush_rows();
+          };
+          if (parts) {
+            scratch_->reset();
+            for (const Source& src : sources) add_to_scratch(src);
+            apply_scratch();
+            return;
+          }
+          for (const Source& src : sources) {
+            if (src.kind == Kind::kScan && src.n_blocks + src.n_hits > 0) {
+              flush_rows();  // (rows come from batches only, and must go first)
+              scratch_->reset();
+              add_to_scratch(src);
+              apply_scratch();
+            } else if (src.kind == Kind::kBatch) {
+              for (std::uint64_t i = 0; i < src.n_records; ++i) {
+                Record rec;
+                std::memcpy(&rec, src.records + i * sizeof(Record), sizeof rec);
+                add({rec.x, rec.y, rec.z}, rec.intensity, rec.occupied != 0);
+              }
             }
           }
-          apply();
+          flush_rows();
         }));
   stats_.apply_seconds += seconds_since(received);
 }

@@ -66,6 +66,9 @@ output:
                             --snapshot it gathers the whole map); --async, --register,
                             --mean-positions and --no-rays are not available, and colours are
                             not kept
+  --split-points            with --mpi: every file is one round of all ranks, each casting its
+                            1/N of the points (for few large files; each rank reads the whole
+                            file); the map is the same
 )";
 
 }  // namespace
@@ -81,7 +84,7 @@ int run_map(const std::vector<std::string>& argv) {
   auto value_opts = map_value_options();
   value_opts.insert({"-o", "--output", "--octomap", "--snapshot"});
   auto flag_opts = map_flag_options();
-  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async", "--mean-positions", "--no-colors", "--register", "--mpi"});
+  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async", "--mean-positions", "--no-colors", "--register", "--mpi", "--split-points"});
 #ifdef IWLOMAP_HAVE_REGISTRATION
   value_opts.merge(registration_value_options());
   flag_opts.merge(registration_flag_options());
@@ -98,6 +101,7 @@ int run_map(const std::vector<std::string>& argv) {
   if (inputs.empty()) throw UsageError("no input file");
   const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
   const bool quiet = args.flag("-q") || args.flag("--quiet");
+  if (args.flag("--split-points") && !args.flag("--mpi")) throw UsageError("--split-points needs --mpi");
   if (args.flag("--mpi")) {
 #ifdef IWLOMAP_HAVE_MPI
     return run_map_mpi(args, inputs, output, quiet);

@@ -100,7 +100,23 @@ int run_map_mpi(const Args& args, const std::vector<std::string>& inputs, const 
     const auto started = std::chrono::steady_clock::now();
     mpi::DistributedMapper map(MPI_COMM_WORLD, resolution, setup.params, options);
     std::uint64_t points = 0;
-    {
+    const bool split_points = args.flag("--split-points");
+    if (split_points) {
+      // Every file by all ranks together, each casting its share of the points (one scan per round).
+      Progress progress("mapping (" + std::to_string(ranks) + " ranks, points split)", inputs.size(), !quiet && rank == 0);
+      for (std::size_t i = 0; i < inputs.size(); ++i) {
+        const LoadedCloud in = load_cloud(inputs[i], static_cast<float>(setup.params.intensity_max));
+        Eigen::MatrixXd xyz;
+        Eigen::VectorXd intensity;
+        cloud_to_matrices(*in.cloud, nullptr, setup.params.intensity_max, xyz, intensity);
+        const Eigen::Index n = xyz.rows();
+        const Eigen::Index begin = n * rank / ranks, end = n * (rank + 1) / ranks;
+        if (rank == 0) points += static_cast<std::uint64_t>(n);
+        map.insert_scan_part(in.cloud->sensor_origin_.head<3>().cast<double>(), xyz.middleRows(begin, end - begin),
+                             intensity.segment(begin, end - begin), setup.max_range);
+        progress.update(i + 1);
+      }
+    } else {
       // Round robin: file i on rank i mod N in round i / N, so the map keeps the files' order.
       const std::size_t rounds = (inputs.size() + static_cast<std::size_t>(ranks) - 1) / static_cast<std::size_t>(ranks);
       Progress progress("mapping (" + std::to_string(ranks) + " ranks)", inputs.size(), !quiet && rank == 0);

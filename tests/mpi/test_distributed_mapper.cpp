@@ -264,6 +264,62 @@ TEST(DistributedMapper, OneProcessDiskMapSplitsAndContinuesOnTheRanks) {
   if (again.rank() == 0) expect_same(got, reference(scans, 0.1, lidar_params(), -1.0));
 }
 
+// Rank r's share of \p scan: rows [r n / N, (r + 1) n / N).
+Scan part_of(const Scan& scan, int rank, int ranks) {
+  const Eigen::Index n = scan.points.rows();
+  const Eigen::Index begin = n * rank / ranks, end = n * (rank + 1) / ranks;
+  return {scan.origin, scan.points.middleRows(begin, end - begin), scan.intensities.segment(begin, end - begin)};
+}
+
+TEST(DistributedMapper, OneScanSplitOverTheRanksEqualsItsOneProcessMap) {
+  // Each scan's points are split over the ranks (as ranges of one big file would be), in the
+  // order the scan has them, so a voxel's free and hit observations, and several hits in one
+  // voxel, land on different ranks: the owners must merge them under the per-scan rule.
+  auto scans = courtyard_scans();
+  scans.resize(3);
+  scans[1].points(11, 0) = std::numeric_limits<double>::quiet_NaN();  // skipped and counted once
+  for (const char* backend : {"RAM", "Disk"}) {
+    DistributedOptions o;
+    o.backend = backend;
+    if (o.backend == "Disk") o.directory = shared_directory("parts");
+    DistributedMapper map(MPI_COMM_WORLD, 0.1, lidar_params(), o);
+    for (const Scan& s : scans) {
+      const Scan mine = part_of(s, map.rank(), map.ranks());
+      map.insert_scan_part(mine.origin, mine.points, mine.intensities, 15.0);
+    }
+    const auto got = map.gather_voxels();
+    EXPECT_EQ(map.num_skipped_points(), 1u);
+    if (map.rank() == 0) expect_same(got, reference(scans, 0.1, lidar_params(), 15.0));
+  }
+}
+
+TEST(DistributedMapper, ARoundMixingScanPartsWithWholeScansIsRefusedEverywhere) {
+  if (world_size() < 2) GTEST_SKIP() << "needs two ranks";
+  const auto scans = courtyard_scans();
+  DistributedMapper map(MPI_COMM_WORLD, 0.2, lidar_params());
+  const Scan& s = scans[0];
+  try {
+    if (map.rank() == 0)
+      map.insert_scan_part(s.origin, s.points, s.intensities);
+    else
+      map.insert_scan(s.origin, s.points, s.intensities);
+    ADD_FAILURE() << "no exception";
+  } catch (const DistributedError& e) {
+    EXPECT_NE(std::string(e.what()).find("insert_scan_part()"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(map.num_nodes(), 0u);
+  // Parts from different origins are refused before anything is applied.
+  Eigen::Vector3d origin = s.origin;
+  origin.x() += map.rank();
+  try {
+    map.insert_scan_part(origin, s.points, s.intensities);
+    ADD_FAILURE() << "no exception";
+  } catch (const DistributedError& e) {
+    EXPECT_NE(std::string(e.what()).find("different origins"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(map.num_nodes(), 0u);
+}
+
 TEST(DistributedMapper, ABadScanOnOneRankMakesEveryRankThrowNamingIt) {
   const auto scans = courtyard_scans();
   DistributedMapper map(MPI_COMM_WORLD, 0.2, lidar_params());

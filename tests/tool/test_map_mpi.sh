@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: BSD-3-Clause
-# `iwlomap map --mpi` under mpirun: the occupied voxels of 2 and 3 ranks (RAM and Disk shards)
+# `iwlomap map --mpi` under mpirun: the occupied voxels of 2 and 3 ranks (RAM and Disk shards,
+# files round robin or each split by points)
 # and the .ot file are those of the one-process `iwlomap map`; a bad output ends every rank with
 # the usage code; a file one rank cannot read ends the job naming it.
 # usage: test_map_mpi.sh MPIEXEC IWLOMAP WORKDIR
@@ -32,8 +33,10 @@ grep -q "on 2 rank(s)" "$work/two.log" || fail "the summary does not name 2 rank
 run -np 3 "$tool" map --mpi "${scans[@]}" "${opts[@]}" --backend disk --tiles "$work/tiles" -q -o "$work/three.pcd" \
   || fail "3 ranks, disk"
 test -f "$work/tiles/iwlomap_distributed.manifest" && test -d "$work/tiles/rank-2" || fail "no distributed directory"
+# Each file split over 3 ranks by points: the same map.
+run -np 3 "$tool" map --mpi --split-points "${scans[@]}" "${opts[@]}" -q -o "$work/split.pcd" || fail "3 ranks, split points"
 # The same voxels and probabilities, whatever the order of the rows.
-/usr/bin/python3 - "$work/one.pcd" "$work/two.pcd" "$work/three.pcd" <<'PY' || fail "the maps differ"
+/usr/bin/python3 - "$work/one.pcd" "$work/two.pcd" "$work/three.pcd" "$work/split.pcd" <<'PY' || fail "the maps differ"
 import sys
 import numpy as np
 def voxels(path):

@@ -111,6 +111,17 @@ class DistributedMapper {
   /// IMapperBackend::insert_scan() (max_range, skipped points, one observation per voxel per scan).
   void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                    double max_range = -1.0);
+  /// This rank's part of a round in which all ranks integrate ONE scan together, each passing a
+  /// part of its points (for example a range of the points of one big file): the observations of
+  /// all parts are merged by the owners under the per-scan rule (one observation per voxel;
+  /// occupied wins over free; the largest intensity of a voxel's hits) and applied once, so the
+  /// map equals one process integrating the whole scan with insert_scan(). Every rank passes the
+  /// same \p origin and \p max_range (else every rank throws DistributedError); a rank
+  /// without points passes an empty part (0 x 3). In one round either every rank calls this (or
+  /// pass()) or none does: a round that mixes it with insert_scan() or batch_update_iwlo()
+  /// throws DistributedError on every rank, and nothing of it is applied.
+  void insert_scan_part(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                        const Eigen::VectorXd& intensities, double max_range = -1.0);
   /// This rank's part of one round: one observation per point in call order, as
   /// IMapperBackend::batch_update_iwlo() (non-finite points skipped and counted).
   void batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
@@ -148,6 +159,9 @@ class DistributedMapper {
   struct Record;
   struct FreeBlock;
   struct Outgoing;
+  enum class Kind : std::uint64_t;
+  void cast_and_apply(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                      double max_range, Kind kind);
   void exchange_and_apply(std::vector<Outgoing>& outgoing);
   [[nodiscard]] int owner_of_voxel(const VoxelKey& key) const noexcept;
 
