@@ -138,9 +138,10 @@ int owner_of_tile(const VoxelKey& tile, int ranks) noexcept {
 }
 
 // On the wire, per destination: three counts (free blocks, hits, ordered records), the kind of the
-// sender's part of the round and a scan part's origin and max_range, then the three sections. A scan's free voxels travel as 8^3 blocks with a 512-bit mask (80 bytes for up
-// to 512 voxels; a ray-cast block holds tens of free voxels, so this is several times smaller than
-// a record per voxel); its hits and a batch's observations as records, a batch's in call order.
+// sender's part of the round and a scan part's origin and max_range, then the three sections. A
+// scan's free voxels travel as 8^3 blocks with a 512-bit mask (80 bytes for up to 512 voxels; a
+// ray-cast block holds tens of free voxels, so this is several times smaller than a record per
+// voxel); its hits and a batch's observations as records, a batch's in call order.
 struct DistributedMapper::Record {
   std::int32_t x, y, z;
   std::int32_t occupied;
@@ -161,7 +162,8 @@ struct DistributedMapper::Outgoing {
   std::vector<Record> hits;
   std::vector<Record> records;
   [[nodiscard]] std::uint64_t bytes() const noexcept {
-    return 4 * sizeof(std::uint64_t) + 4 * sizeof(double) + blocks.size() * sizeof(FreeBlock) + (hits.size() + records.size()) * sizeof(Record);
+    return 4 * sizeof(std::uint64_t) + 4 * sizeof(double) + blocks.size() * sizeof(FreeBlock) +
+           (hits.size() + records.size()) * sizeof(Record);
   }
 };
 
@@ -257,7 +259,9 @@ void DistributedMapper::cast_and_apply(const Eigen::Vector3d& origin, const Eige
     FreeBlock current{};
     bool open = false;
     const auto close = [&] {
-      if (open) outgoing[static_cast<std::size_t>(owner_of_voxel(detail::voxel_of({current.x, current.y, current.z}, 0)))].blocks.push_back(current);
+      if (!open) return;
+      const VoxelKey first_voxel = detail::voxel_of({current.x, current.y, current.z}, 0);
+      outgoing[static_cast<std::size_t>(owner_of_voxel(first_voxel))].blocks.push_back(current);
     };
     scratch.for_each_free(0, scratch.num_chunks(), [&](const VoxelKey& block_key, int index) {
       if (!open || block_key.x != current.x || block_key.y != current.y || block_key.z != current.z) {
