@@ -16,12 +16,12 @@
 #include <iwlomap/mpi/distributed_mapper.h>
 #include <iwlomap/synthetic_scan.h>
 
+#include <iwlomap/filters/cloud_conversions.h>
 #include <pcl/io/pcd_io.h>
 #include <pcl/point_types.h>
 
 #include <algorithm>
 #include <map>
-#include <tuple>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -66,18 +66,15 @@ struct Measured {
 using TileLoads = std::vector<std::vector<std::pair<iwlomap::VoxelKey, double>>>;
 TileLoads tile_loads(const Workload& w, std::uint32_t tile_voxels) {
   TileLoads loads(w.scans.size());
-  const auto e = static_cast<int>(tile_voxels);
-  const auto fd = [e](int a) { return a >= 0 ? a / e : -((-a + e - 1) / e); };
   for (std::size_t s = 0; s < w.scans.size(); ++s) {
     auto map = iwlomap::make_backend("RAM", w.resolution);
     map->set_params(w.params);
     map->insert_scan(w.scans[s].origin, w.scans[s].points, w.scans[s].intensities, w.max_range);
-    std::map<std::tuple<int, int, int>, double> per_tile;
+    std::map<iwlomap::VoxelKey, double> per_tile;
     map->for_each_voxel([&](const iwlomap::VoxelKey& k, const iwlomap::VoxelState&) {
-      per_tile[{fd(k.x), fd(k.y), fd(k.z)}] += 1.0;
+      per_tile[iwlomap::mpi::tile_of_voxel(k, tile_voxels)] += 1.0;
     });
-    for (const auto& [t, c] : per_tile)
-      loads[s].push_back({iwlomap::VoxelKey{std::get<0>(t), std::get<1>(t), std::get<2>(t)}, c});
+    loads[s].assign(per_tile.begin(), per_tile.end());
   }
   return loads;
 }
@@ -115,12 +112,7 @@ std::vector<Scan> ouster(const std::string& dir) {
     if (!std::filesystem::exists(dir + name) || pcl::io::loadPCDFile(dir + name, c) < 0) return {};
     Scan s;
     s.origin = c.sensor_origin_.head<3>().cast<double>();
-    s.points.resize(static_cast<Eigen::Index>(c.size()), 3);
-    s.intensities.resize(static_cast<Eigen::Index>(c.size()));
-    for (std::size_t i = 0; i < c.size(); ++i) {
-      s.points.row(static_cast<Eigen::Index>(i)) << c[i].x, c[i].y, c[i].z;
-      s.intensities[static_cast<Eigen::Index>(i)] = c[i].intensity;
-    }
+    iwlomap::cloud_to_matrices(c, nullptr, 255.0, s.points, s.intensities);
     frames.push_back(std::move(s));
   }
   std::vector<Scan> scans;

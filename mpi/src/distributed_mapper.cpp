@@ -5,10 +5,10 @@
 
 #include "backends/backend_access.h"
 #include "backends/disk/map_directory.h"
+#include "backends/disk/tile_file.h"
 #include "integrate/batch_input.h"
 #include "integrate/scan_scratch.h"
 #include "iwlomap/outofcore_tile_mapper.h"
-#include "iwlomap/probability_updater.h"
 #include "manifest.h"
 
 #include <algorithm>
@@ -19,9 +19,6 @@
 #include <cstring>
 #include <exception>
 #include <filesystem>
-#include <limits>
-#include <tuple>
-#include <type_traits>
 
 namespace iwlomap::mpi {
 
@@ -31,11 +28,6 @@ DistributedError::DistributedError(int rank, const std::string& message)
     : std::runtime_error("rank " + std::to_string(rank) + ": " + message), rank_(rank) {}
 
 namespace {
-
-std::int32_t floor_div(std::int32_t a, std::int32_t b) noexcept {
-  const std::int32_t q = a / b;
-  return (a % b != 0 && ((a < 0) != (b < 0))) ? q - 1 : q;
-}
 
 // After a step that may have failed on some ranks (an empty \p error: this rank's step went well),
 // every rank learns whether any failed; if so all throw DistributedError with the lowest failed
@@ -100,8 +92,10 @@ std::vector<int> displacements(const std::vector<int>& counts) {
   return d;
 }
 
-// Gathers each rank's bytes on root (concatenated in rank order).
-std::vector<char> gather_bytes(MPI_Comm comm, int root, int rank, int size, const std::vector<char>& mine) {
+// Gathers each rank's bytes on root (concatenated in rank order); \p sizes (when given) receives
+// each rank's byte count on root.
+std::vector<char> gather_bytes(MPI_Comm comm, int root, int rank, int size, const std::vector<char>& mine,
+                               std::vector<std::uint64_t>* sizes_out = nullptr) {
   const std::uint64_t n = mine.size();
   std::vector<std::uint64_t> sizes(static_cast<std::size_t>(size));
   MPI_Gather(&n, 1, MPI_UINT64_T, sizes.data(), 1, MPI_UINT64_T, root, comm);
@@ -117,10 +111,16 @@ std::vector<char> gather_bytes(MPI_Comm comm, int root, int rank, int size, cons
   // (n <= INT_MAX here: root checked every rank's size above.)
   MPI_Gatherv(mine.data(), static_cast<int>(n), MPI_BYTE, all.data(), counts.data(), displs.data(), MPI_BYTE, root,
               comm);
+  if (sizes_out != nullptr) *sizes_out = std::move(sizes);
   return all;
 }
 
 }  // namespace
+
+VoxelKey tile_of_voxel(const VoxelKey& voxel, std::uint32_t tile_voxels) noexcept {
+  const auto e = static_cast<std::int32_t>(tile_voxels);
+  return {detail::floor_div(voxel.x, e), detail::floor_div(voxel.y, e), detail::floor_div(voxel.z, e)};
+}
 
 int owner_of_tile(const VoxelKey& tile, int ranks) noexcept {
   if (ranks <= 1) return 0;
@@ -219,8 +219,7 @@ DistributedMapper::DistributedMapper(MPI_Comm comm, double resolution, const Iwl
 DistributedMapper::~DistributedMapper() = default;
 
 int DistributedMapper::owner_of_voxel(const VoxelKey& key) const noexcept {
-  const auto e = static_cast<std::int32_t>(tile_voxels_);
-  return owner_of_tile({floor_div(key.x, e), floor_div(key.y, e), floor_div(key.z, e)}, size_);
+  return owner_of_tile(tile_of_voxel(key, tile_voxels_), size_);
 }
 
 namespace {
@@ -375,9 +374,9 @@ void DistributedMapper::exchange_and_apply(std::vector<Outgoing>& outgoing) {
             std::uint64_t counts[4];
             std::memcpy(counts, at, sizeof counts);
             at += sizeof counts;
-            std::memcpy(sources[r].where, at, sizeof sources[r].where);
-            at += sizeof sources[r].where;
             Source& src = sources[r];
+            std::memcpy(src.where, at, sizeof src.where);
+            at += sizeof src.where;
             src.blocks = at;
             src.hits = at + counts[0] * sizeof(FreeBlock);
             src.records = src.hits + counts[1] * sizeof(Record);
@@ -403,25 +402,6 @@ void DistributedMapper::exchange_and_apply(std::vector<Outgoing>& outgoing) {
                                             "; one scan's parts share its origin and max_range");
           }
 
-          constexpr Eigen::Index kRows = Eigen::Index{1} << 18;
-          Eigen::MatrixXd rows(kRows, 3);
-          Eigen::VectorXd values(kRows);
-          std::vector<bool> flags(static_cast<std::size_t>(kRows));
-          Eigen::Index used = 0;
-          const auto flush_rows = [&] {
-            if (used == kRows)
-              local_->batch_update_iwlo(rows, values, flags);
-            else if (used > 0)
-              local_->batch_update_iwlo(rows.topRows(used), values.head(used),
-                                        std::vector<bool>(flags.begin(), flags.begin() + static_cast<std::ptrdiff_t>(used)));
-            used = 0;
-          };
-          const auto add = [&](const VoxelKey& k, double intensity, bool occupied) {
-            rows.row(used) = key_to_center(k, resolution_).transpose();
-            values[used] = intensity;
-            flags[static_cast<std::size_t>(used)] = occupied;
-            if (++used == kRows) flush_rows();
-          };
           const auto add_to_scratch = [&](const Source& src) {
             for (std::uint64_t i = 0; i < src.n_blocks; ++i) {
               FreeBlock b;
@@ -434,41 +414,35 @@ void DistributedMapper::exchange_and_apply(std::vector<Outgoing>& outgoing) {
               scratch_->add_hit({rec.x, rec.y, rec.z}, rec.intensity);
             }
           };
-          // A RAM shard applies a scratch through the backend's own scan path (about 3x faster
-          // than a batch row per voxel, the same voxels); another backend gets its rows.
-          auto* ram = dynamic_cast<ProbabilityUpdater*>(local_.get());
-          const auto apply_scratch = [&] {
-            if (ram != nullptr) {
-              detail::BackendAccess::apply_collected_scan(*ram, *scratch_);
-              return;
-            }
-            scratch_->for_each_free(0, scratch_->num_chunks(), [&](const VoxelKey& block_key, int index) {
-              add(detail::voxel_of(block_key, index), 0.0, false);
-            });
-            scratch_->for_each_hit([&](const VoxelKey& key, double intensity) { add(key, intensity, true); });
-            flush_rows();
-          };
+          // The backend applies a rebuilt scratch as its own insert_scan() would (a RAM shard
+          // through its scan path, about 3x faster than a batch row per voxel).
           if (parts) {
             scratch_->reset();
             for (const Source& src : sources) add_to_scratch(src);
-            apply_scratch();
+            detail::BackendAccess::apply_collected_scan(*local_, *scratch_);
             return;
           }
           for (const Source& src : sources) {
             if (src.kind == Kind::kScan && src.n_blocks + src.n_hits > 0) {
-              flush_rows();  // (rows come from batches only, and must go first)
               scratch_->reset();
               add_to_scratch(src);
-              apply_scratch();
-            } else if (src.kind == Kind::kBatch) {
-              for (std::uint64_t i = 0; i < src.n_records; ++i) {
+              detail::BackendAccess::apply_collected_scan(*local_, *scratch_);
+            } else if (src.kind == Kind::kBatch && src.n_records > 0) {
+              // A batch in its call order, one backend call (the sender held it whole too).
+              const auto rows = static_cast<Eigen::Index>(src.n_records);
+              Eigen::MatrixXd centres(rows, 3);
+              Eigen::VectorXd values(rows);
+              std::vector<bool> flags(static_cast<std::size_t>(rows));
+              for (Eigen::Index i = 0; i < rows; ++i) {
                 Record rec;
-                std::memcpy(&rec, src.records + i * sizeof(Record), sizeof rec);
-                add({rec.x, rec.y, rec.z}, rec.intensity, rec.occupied != 0);
+                std::memcpy(&rec, src.records + static_cast<std::size_t>(i) * sizeof(Record), sizeof rec);
+                centres.row(i) = key_to_center({rec.x, rec.y, rec.z}, resolution_).transpose();
+                values[i] = rec.intensity;
+                flags[static_cast<std::size_t>(i)] = rec.occupied != 0;
               }
+              local_->batch_update_iwlo(centres, values, flags);
             }
           }
-          flush_rows();
         }));
   stats_.apply_seconds += seconds_since(received);
 }
@@ -513,25 +487,20 @@ Eigen::MatrixXd DistributedMapper::gather_occupied_voxels(double min_probability
           local = local_->get_occupied_voxels(min_probability);
         }));
   // Rows as (x, y, z, p) doubles, row-major on the wire.
-  std::vector<char> mine(static_cast<std::size_t>(local.rows()) * 4 * sizeof(double));
-  for (Eigen::Index i = 0; i < local.rows(); ++i)
-    for (int c = 0; c < 4; ++c) {
-      const double v = local(i, c);
-      std::memcpy(mine.data() + (static_cast<std::size_t>(i) * 4 + static_cast<std::size_t>(c)) * sizeof(double), &v,
-                  sizeof v);
-    }
+  using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, 4, Eigen::RowMajor>;
+  const RowMajor rows_local = local;
+  const auto* first = reinterpret_cast<const char*>(rows_local.data());
+  const std::vector<char> mine(first, first + rows_local.size() * static_cast<Eigen::Index>(sizeof(double)));
   const std::vector<char> all = gather_bytes(comm_, root, rank_, size_, mine);
   if (rank_ != root) return Eigen::MatrixXd(0, 4);
-  const std::size_t rows = all.size() / (4 * sizeof(double));
-  std::vector<std::pair<VoxelKey, std::size_t>> order(rows);
-  std::vector<double> v(rows * 4);
+  RowMajor v(static_cast<Eigen::Index>(all.size() / (4 * sizeof(double))), 4);
   if (!all.empty()) std::memcpy(v.data(), all.data(), all.size());
-  for (std::size_t i = 0; i < rows; ++i)
-    order[i] = {world_to_key(Eigen::Vector3d(v[i * 4], v[i * 4 + 1], v[i * 4 + 2]), resolution_), i};
+  std::vector<std::pair<VoxelKey, Eigen::Index>> order(static_cast<std::size_t>(v.rows()));
+  for (Eigen::Index i = 0; i < v.rows(); ++i)
+    order[static_cast<std::size_t>(i)] = {world_to_key(v.row(i).head<3>().transpose(), resolution_), i};
   std::sort(order.begin(), order.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
-  Eigen::MatrixXd out(static_cast<Eigen::Index>(rows), 4);
-  for (std::size_t i = 0; i < rows; ++i)
-    for (int c = 0; c < 4; ++c) out(static_cast<Eigen::Index>(i), c) = v[order[i].second * 4 + static_cast<std::size_t>(c)];
+  Eigen::MatrixXd out(v.rows(), 4);
+  for (std::size_t i = 0; i < order.size(); ++i) out.row(static_cast<Eigen::Index>(i)) = v.row(order[i].second);
   return out;
 }
 
@@ -561,11 +530,9 @@ void DistributedMapper::flush() {
           local_->flush();
           for (const std::string& t : list_tile_files(rank_directory(options_.directory, rank_))) names += t + "\n";
         }));
-  const std::vector<char> all = gather_bytes(comm_, 0, rank_, size_, std::vector<char>(names.begin(), names.end()));
-  // Rank 0 needs to know where each rank's list ends: gather the lengths as well.
-  const std::uint64_t n = names.size();
-  std::vector<std::uint64_t> lengths(static_cast<std::size_t>(size_));
-  MPI_Gather(&n, 1, MPI_UINT64_T, lengths.data(), 1, MPI_UINT64_T, 0, comm_);
+  std::vector<std::uint64_t> lengths;  // where each rank's list ends
+  const std::vector<char> all =
+      gather_bytes(comm_, 0, rank_, size_, std::vector<char>(names.begin(), names.end()), &lengths);
   agree(comm_, rank_, attempt([&] {
           if (rank_ != 0) return;
           DistributedManifest m;

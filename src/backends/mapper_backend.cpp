@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "iwlomap/mapper_backend.h"
 
+#include "backends/backend_access.h"
 #include "integrate/batch_input.h"
 #include "integrate/scan_scratch.h"
 #include "model/checks.h"
@@ -38,6 +39,12 @@ void IMapperBackend::insert_scan(const Eigen::Vector3d& origin, const Eigen::Mat
   detail::check_scan_input(origin, points, intensities, max_range, r);
   detail::ScanScratch scratch;
   const std::size_t skipped = scratch.collect(origin, points, intensities, max_range, r, get_num_threads());
+  detail::apply_scratch_by_batches(*this, scratch);
+  default_skipped_ += skipped;
+}
+
+void detail::apply_scratch_by_batches(IMapperBackend& map, const ScanScratch& scratch) {
+  const double r = map.get_resolution();
   // Every voxel's one observation of the scan, at the voxel's centre, in batches of kRows rows.
   constexpr Eigen::Index kRows = Eigen::Index{1} << 16;
   Eigen::MatrixXd rows(kRows, 3);
@@ -46,10 +53,10 @@ void IMapperBackend::insert_scan(const Eigen::Vector3d& origin, const Eigen::Mat
   Eigen::Index n = 0;
   const auto flush = [&] {
     if (n == kRows) {
-      batch_update_iwlo(rows, values, flags);
+      map.batch_update_iwlo(rows, values, flags);
     } else if (n > 0) {
-      batch_update_iwlo(rows.topRows(n), values.head(n),
-                        std::vector<bool>(flags.begin(), flags.begin() + static_cast<std::ptrdiff_t>(n)));
+      map.batch_update_iwlo(rows.topRows(n), values.head(n),
+                            std::vector<bool>(flags.begin(), flags.begin() + static_cast<std::ptrdiff_t>(n)));
     }
     n = 0;
   };
@@ -63,7 +70,13 @@ void IMapperBackend::insert_scan(const Eigen::Vector3d& origin, const Eigen::Mat
                         [&](const VoxelKey& block_key, int index) { add(detail::voxel_of(block_key, index), 0.0, false); });
   scratch.for_each_hit([&](const VoxelKey& key, double intensity) { add(key, intensity, true); });
   flush();
-  default_skipped_ += skipped;
+}
+
+void detail::BackendAccess::apply_collected_scan(IMapperBackend& map, const ScanScratch& scratch) {
+  if (auto* ram = dynamic_cast<ProbabilityUpdater*>(&map))
+    apply_to_ram(*ram, scratch);
+  else
+    apply_scratch_by_batches(map, scratch);
 }
 
 std::optional<VoxelState> IMapperBackend::query(const Eigen::Vector3d&) const {

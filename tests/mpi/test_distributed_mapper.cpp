@@ -13,6 +13,7 @@
 #include <gtest/gtest.h>
 
 #ifdef IWLOMAP_TEST_HAVE_PCL
+#include <iwlomap/filters/cloud_conversions.h>
 #include <pcl/io/pcd_io.h>
 #include <pcl/point_types.h>
 #endif
@@ -386,12 +387,7 @@ std::vector<Scan> ouster_frames() {
     if (!fs::exists(dir / name) || pcl::io::loadPCDFile((dir / name).string(), c) < 0) return {};
     Scan s;
     s.origin = c.sensor_origin_.head<3>().cast<double>();
-    s.points.resize(static_cast<Eigen::Index>(c.size()), 3);
-    s.intensities.resize(static_cast<Eigen::Index>(c.size()));
-    for (std::size_t i = 0; i < c.size(); ++i) {
-      s.points.row(static_cast<Eigen::Index>(i)) << c[i].x, c[i].y, c[i].z;
-      s.intensities[static_cast<Eigen::Index>(i)] = c[i].intensity;
-    }
+    iwlomap::cloud_to_matrices(c, nullptr, 255.0, s.points, s.intensities);
     scans.push_back(std::move(s));
   }
   return scans;

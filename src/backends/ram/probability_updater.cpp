@@ -129,7 +129,7 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
   m.hits.add_scan(origin, points, intensities, max_range, m.updater.params().intensity_threshold);
 }
 
-void detail::BackendAccess::apply_collected_scan(ProbabilityUpdater& map, const ScanScratch& scratch) {
+void detail::BackendAccess::apply_to_ram(ProbabilityUpdater& map, const ScanScratch& scratch) {
   ProbabilityUpdater::Impl& m = map.impl();
   if (m.hits.enabled())
     throw std::logic_error("iwlomap: a collected scan carries no points for the hit statistics; turn them off");

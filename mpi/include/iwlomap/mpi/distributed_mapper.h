@@ -70,6 +70,10 @@ struct DistributedOptions {
   int threads = 1;
 };
 
+/// The shard (tile coordinates) holding \p voxel, for shards of \p tile_voxels voxels a side
+/// (DistributedMapper::tile_voxels()): the voxel key floor-divided by it.
+[[nodiscard]] VoxelKey tile_of_voxel(const VoxelKey& voxel, std::uint32_t tile_voxels) noexcept;
+
 /// The rank that owns the shard \p tile (tile coordinates: voxel key floor-divided by the shard
 /// edge in voxels) among \p ranks ranks: a fixed hash, the same on every machine and run.
 [[nodiscard]] int owner_of_tile(const VoxelKey& tile, int ranks) noexcept;
