@@ -11,6 +11,7 @@
 #include <cstddef>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <vector>
 
 namespace iwlomap::bench {
@@ -20,6 +21,30 @@ using Clock = std::chrono::steady_clock;
 /// Milliseconds of wall clock since \p t0.
 [[nodiscard]] inline double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+/// Wall-clock time and the calling thread's CPU time (user + system, so page faults count). For a
+/// single-threaded measurement on an idle machine the two agree; on a shared machine the CPU time
+/// leaves out the time the thread waited for a core, and is the steadier figure.
+struct Stamp {
+  Clock::time_point wall;
+  double cpu_ns;
+};
+
+[[nodiscard]] inline Stamp now() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return {Clock::now(), static_cast<double>(ts.tv_sec) * 1e9 + static_cast<double>(ts.tv_nsec)};
+}
+
+/// Milliseconds between two stamps, wall clock and thread CPU time.
+struct Sample {
+  double wall_ms = 0.0;
+  double cpu_ms = 0.0;
+};
+
+[[nodiscard]] inline Sample elapsed(const Stamp& t0, const Stamp& t1) {
+  return {std::chrono::duration<double, std::milli>(t1.wall - t0.wall).count(), (t1.cpu_ns - t0.cpu_ns) * 1e-6};
 }
 
 /// The median of \p v (the mean of the middle two of an even count; NaN when empty).
