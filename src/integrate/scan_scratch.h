@@ -160,12 +160,8 @@ class ScanScratch {
     return static_cast<std::size_t>(b * kBlockVoxels + index_in_block(k));
   }
   std::size_t chunk(const VoxelKey& chunk_key);
-  void mark_free(const VoxelKey& k) {
-    const VoxelKey ck{k.x >> kChunkShift, k.y >> kChunkShift, k.z >> kChunkShift};
-    if (last_ < 0 || chunks_[static_cast<std::size_t>(last_)].key != ck) last_ = static_cast<std::int64_t>(chunk(ck));
-    const std::size_t bit = bit_in_chunk(k);
-    chunks_[static_cast<std::size_t>(last_)].free[bit >> 6] |= std::uint64_t{1} << (bit & 63);
-  }
+  // Marks free every voxel cast_ray() visits from \p origin to \p end.
+  void mark_ray(const Eigen::Vector3d& origin, const Eigen::Vector3d& end, double resolution);
 
   std::vector<Chunk> chunks_;
   FlatKeyMap chunk_index_;

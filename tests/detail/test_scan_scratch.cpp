@@ -1,13 +1,17 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// The scan scratch: rays cast on several threads into scratches of their own and merged give
-// exactly the observations of one thread (OR of free bits, max of hit intensities).
+// The scan scratch: its free voxels are exactly those cast_ray() visits; rays cast on several
+// threads into scratches of their own and merged give exactly the observations of one thread (OR
+// of free bits, max of hit intensities).
 
 #include "integrate/scan_scratch.h"
+#include "iwlomap/ray_caster.h"
 #include "iwlomap/synthetic_scan.h"
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <map>
+#include <random>
 #include <set>
 #include <tuple>
 #include <utility>
@@ -32,6 +36,47 @@ Observations observations_of(const detail::ScanScratch& s) {
   });
   s.for_each_block([&](const VoxelKey& b, const detail::CellMask& cells) { o.blocks.emplace_back(std::make_tuple(b.x, b.y, b.z), cells); });
   return o;
+}
+
+// The scratch walks rays with its own bookkeeping (a bit index kept per axis, chunk changes on
+// the way); the voxels must be cast_ray()'s, ray for ray. The rays start on both sides of zero
+// and near chunk corners, run long (across many 32-voxel chunks, in every direction), along axes
+// and diagonals and through voxel edges, where the walk's tie rule decides.
+TEST(ScanScratch, FreeVoxelsEqualCastRayWhenRaysCrossChunksInEveryDirection) {
+  const double res = 0.1;
+  std::mt19937 rng(2026);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  const std::vector<Eigen::Vector3d> origins = {{0.05, 0.05, 0.05}, {-3.2, 3.2, -0.0001}, {3.19999, -3.2, 6.4},
+                                                {0.0, 0.0, 0.0}, {-12.34, 5.67, -8.9}};
+  for (const Eigen::Vector3d& origin : origins) {
+    std::vector<Eigen::Vector3d> ends;
+    for (int i = 0; i < 300; ++i) ends.push_back(origin + Eigen::Vector3d(u(rng), u(rng), u(rng)) * 15.0);
+    for (int a = 0; a < 3; ++a)
+      for (const double sign : {-1.0, 1.0}) {
+        Eigen::Vector3d d = Eigen::Vector3d::Zero();
+        d[a] = sign * 7.0;
+        ends.push_back(origin + d);
+      }
+    for (const Eigen::Vector3d& d : {Eigen::Vector3d(5, 5, 0), Eigen::Vector3d(-5, 5, 5), Eigen::Vector3d(4, -4, -4)})
+      ends.push_back(origin + d);  // exact diagonals from the origin pass through edges and corners
+    Eigen::MatrixXd points(static_cast<Eigen::Index>(ends.size()), 3);
+    for (std::size_t i = 0; i < ends.size(); ++i) points.row(static_cast<Eigen::Index>(i)) = ends[i].transpose();
+    const Eigen::VectorXd intensities = Eigen::VectorXd::Constant(points.rows(), 100.0);
+
+    std::set<std::tuple<int, int, int>> walked, hits;
+    for (const Eigen::Vector3d& e : ends) {
+      cast_ray(origin, e, res, [&](const VoxelKey& k) { walked.emplace(k.x, k.y, k.z); });
+      const VoxelKey h = world_to_key(e, res);
+      hits.emplace(h.x, h.y, h.z);
+    }
+    for (const auto& h : hits) walked.erase(h);  // occupied wins over free
+    detail::ScanScratch s;
+    s.collect(origin, points, intensities, -1.0, res, 1);
+    const Observations o = observations_of(s);
+    EXPECT_GT(o.free.size(), 20000u);
+    EXPECT_EQ(o.free, walked) << "origin " << origin.transpose();
+    EXPECT_EQ(o.hits.size(), hits.size());
+  }
 }
 
 TEST(ScanScratch, MergedThreadsEqualOneThreadWhenCollectingAScan) {
