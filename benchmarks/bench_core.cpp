@@ -536,13 +536,7 @@ int main(int argc, char** argv) {
   iwlomap::bench::retain_map_memory();
   std::printf("  resolution %.3f m, %d repetition(s) of the batch, %d of each scan measurement (median reported), "
               "single thread\n", o.resolution, o.batch_reps, o.reps);
-  std::printf("  compiler %s, %s\n", __VERSION__,
-#ifdef NDEBUG
-              "NDEBUG (optimised build)"
-#else
-              "WARNING: assertions enabled, not a Release build; figures are not representative"
-#endif
-  );
+  iwlomap::bench::print_build();
   std::printf("  iwlomap: default IwloParams with intensity_threshold 0 (lidar: every return is a hit), 1 thread\n");
   std::printf("  OctoMap: OcTree defaults (hit 0.7, miss 0.4); updateNode log-odds %+.2f per point; "
               "insertPointCloud(lazy_eval=false, discretize=false)\n",

@@ -481,13 +481,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   std::printf("bench_peers: iwlomap scan insertion against Bonxai, single thread, %.2f m\n", kResolution);
-  std::printf("  compiler %s, %s\n", __VERSION__,
-#ifdef NDEBUG
-              "NDEBUG (optimised build)"
-#else
-              "WARNING: assertions enabled, not a Release build; figures are not representative"
-#endif
-  );
+  iwlomap::bench::print_build();
   if (!kWithBonxai)
     std::printf("  Bonxai rows SKIPPED: configure with -DIWLOMAP_BONXAI_DIR=<Bonxai source folder> to build them\n");
   std::printf("  %d timed round(s) per workload after one warm-up, medians; ratio = Bonxai time / iwlomap time\n",

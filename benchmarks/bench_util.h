@@ -55,6 +55,17 @@ struct Sample {
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
+/// Prints the compiler and whether assertions are off (figures of a build with assertions on are
+/// not representative, and the line says so).
+inline void print_build() {
+#ifdef NDEBUG
+  std::printf("  compiler %s, NDEBUG (optimised build)\n", __VERSION__);
+#else
+  std::printf("  compiler %s, WARNING: assertions enabled, not a Release build; figures are not representative\n",
+              __VERSION__);
+#endif
+}
+
 /// Lets maps reuse the memory of the maps destroyed before them (iwlomap/map_memory.h), as a
 /// program that builds one map after another would, so that rounds measure the library rather
 /// than the kernel's first touch of fresh pages; says so on standard output.
