@@ -51,36 +51,13 @@ void ScanScratch::clear() {
   last_ = -1;
 }
 
-namespace {
-
-// bit_in_chunk() of a voxel is the OR of one part per axis, a function of the voxel's coordinate
-// inside its chunk (0..31): x gives bits 0, 2-3 and 9-10, y bits 1, 4-5 and 11-12, z bits 6-8 and
-// 13-14 (index_in_block() within the block, then the block within the chunk). A walk keeps the
-// three parts and, on a step, looks up the one of the axis that moved.
-struct AxisBits {
-  std::uint16_t x[32], y[32], z[32];
-};
-
-constexpr AxisBits make_axis_bits() {
-  AxisBits b{};
-  for (int l = 0; l < 32; ++l) {
-    b.x[l] = static_cast<std::uint16_t>((l & 1) | (((l >> 1) & 3) << 2) | ((l >> 3) << 9));
-    b.y[l] = static_cast<std::uint16_t>(((l & 1) << 1) | (((l >> 1) & 3) << 4) | ((l >> 3) << 11));
-    b.z[l] = static_cast<std::uint16_t>(((l & 7) << 6) | ((l >> 3) << 13));
-  }
-  return b;
-}
-
-constexpr AxisBits kAxisBits = make_axis_bits();
-
-}  // namespace
-
 // cast_ray()'s walk (the same set-up and the same comparisons, so the same voxels), with the
 // bookkeeping of a voxel's bit done incrementally: a step moves one axis's coordinate inside the
 // chunk and looks up that axis's part of the bit index; only a step out of the chunk (about one in
 // 30) looks the next chunk up. A per-voxel mark that recomputed the chunk key and the bit index
 // from the key cost about twice as much per step.
 void ScanScratch::mark_ray(const Eigen::Vector3d& origin, const Eigen::Vector3d& end, double resolution) {
+  static constexpr AxisBits kAxisBits = axis_bits();
   const RayWalk w = start_ray_walk(origin, end, resolution);
   if (w.total == 0) return;
   constexpr double kInf = std::numeric_limits<double>::infinity();

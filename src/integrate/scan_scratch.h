@@ -154,10 +154,25 @@ class ScanScratch {
   void merge(const ScanScratch& other);
 
   // Bit of voxel k inside its chunk: block-major, then index_in_block().
-  [[nodiscard]] static std::size_t bit_in_chunk(const VoxelKey& k) noexcept {
+  [[nodiscard]] static constexpr std::size_t bit_in_chunk(const VoxelKey& k) noexcept {
     constexpr int m = kBlocksPerChunkEdge - 1;
     const int b = ((k.x >> kBlockShift) & m) | (((k.y >> kBlockShift) & m) << 2) | (((k.z >> kBlockShift) & m) << 4);
     return static_cast<std::size_t>(b * kBlockVoxels + index_in_block(k));
+  }
+  // bit_in_chunk() is the OR of one part per axis, each a function of the voxel's coordinate
+  // inside its chunk (0..31; the part of coordinate 0 is 0): mark_ray() keeps the three parts
+  // and, on a step, looks up the part of the axis that moved.
+  struct AxisBits {
+    std::uint16_t x[1 << kChunkShift], y[1 << kChunkShift], z[1 << kChunkShift];
+  };
+  [[nodiscard]] static constexpr AxisBits axis_bits() noexcept {
+    AxisBits b{};
+    for (std::int32_t l = 0; l < (1 << kChunkShift); ++l) {
+      b.x[l] = static_cast<std::uint16_t>(bit_in_chunk({l, 0, 0}));
+      b.y[l] = static_cast<std::uint16_t>(bit_in_chunk({0, l, 0}));
+      b.z[l] = static_cast<std::uint16_t>(bit_in_chunk({0, 0, l}));
+    }
+    return b;
   }
   std::size_t chunk(const VoxelKey& chunk_key);
   // Marks free every voxel cast_ray() visits from \p origin to \p end.

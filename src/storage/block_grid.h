@@ -52,7 +52,7 @@ static_assert((-1 >> 1) == -1, "iwlomap needs arithmetic right shift of negative
 // cell 2 bits each, then z 3 bits), bits 0..1 the voxel inside the cell. So the 4 voxels of a
 // cell are 4 consecutive indices, and one nibble of a 512-bit block mask (the scan scratch's) is
 // one cell.
-[[nodiscard]] inline int index_in_block(const VoxelKey& k) noexcept {
+[[nodiscard]] constexpr int index_in_block(const VoxelKey& k) noexcept {
   const int cell = ((k.x >> 1) & 3) | (((k.y >> 1) & 3) << 2) | ((k.z & 7) << 4);
   return (cell << kCellShift) | (k.x & 1) | ((k.y & 1) << 1);
 }
