@@ -252,7 +252,7 @@ Sample per_scan(const Sample& total, std::size_t scans) {
 }
 
 // Times \p timed after \p untimed, each scan into one map of the library.
-template <class Map, class MakeMap, class Insert, class Size>
+template <class MakeMap, class Insert, class Size>
 Sample run_scans(MakeMap make_map, Insert insert, Size size, const std::vector<const Scan*>& untimed,
                  const std::vector<const Scan*>& timed, MapSize* out) {
   iwlomap::bench::settle_heap();
@@ -274,14 +274,14 @@ Workload scan_workload(std::string name, std::vector<const Scan*> untimed, std::
   w.name = std::move(name);
   w.points = static_cast<std::size_t>(timed.front()->points.rows());
   w.iw = [=](MapSize* out) {
-    return run_scans<iwlomap::ProbabilityUpdater>([] { return make_iwlomap(kResolution); }, iw_insert,
+    return run_scans([] { return make_iwlomap(kResolution); }, iw_insert,
                                                   [](const iwlomap::ProbabilityUpdater& m) { return iw_size(m); },
                                                   untimed, timed, out);
   };
 #ifdef IWLOMAP_BENCH_WITH_BONXAI
   if (bonxai)
     w.bx = [=](MapSize* out) {
-      return run_scans<Bonxai::ProbabilisticMap>(
+      return run_scans(
           [] { return std::make_unique<Bonxai::ProbabilisticMap>(kResolution); }, bx_insert,
           [](Bonxai::ProbabilisticMap& m) { return bx_size(m); }, untimed, timed, out);
     };
@@ -436,19 +436,27 @@ void measure_scattered(const Options& o) {
     v[0].push_back(p.first.cpu_ms);
     v[1].push_back(p.second.cpu_ms);
   };
+  // A peer's call: OctoMap or, when built, Bonxai.
+  const auto peer = [&](bool octomap) {
+    if (octomap) {
+      add(om, scattered_om(s));
+      return;
+    }
+#ifdef IWLOMAP_BENCH_WITH_BONXAI
+    add(bx, scattered_bx(s));
+#endif
+  };
+  // One untimed warm-up call of each library.
   (void)scattered_iw(s);
   (void)scattered_om(s);
+#ifdef IWLOMAP_BENCH_WITH_BONXAI
+  (void)scattered_bx(s);
+#endif
   for (int i = 0; i < o.reps; ++i) {
     // iwlomap between the two peers, and which peer goes first alternates.
-    if (i % 2 == 0) add(om, scattered_om(s));
-#ifdef IWLOMAP_BENCH_WITH_BONXAI
-    else add(bx, scattered_bx(s));
-#endif
+    peer(i % 2 == 0);
     add(iw, scattered_iw(s));
-    if (i % 2 == 1) add(om, scattered_om(s));
-#ifdef IWLOMAP_BENCH_WITH_BONXAI
-    else add(bx, scattered_bx(s));
-#endif
+    peer(i % 2 != 0);
     std::printf("    round %d: iwlomap %8.2f / %8.2f ms   OctoMap %8.2f / %8.2f ms", i + 1, iw[0].back(), iw[1].back(),
                 om[0].back(), om[1].back());
     if (kWithBonxai) std::printf("   Bonxai %8.2f / %8.2f ms", bx[0].back(), bx[1].back());
