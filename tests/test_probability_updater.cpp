@@ -2,10 +2,12 @@
 // The RAM backend (sparse block grid) against a dense reference array, insert_scan() semantics on
 // hand-built scans, and the error contract of IMapperBackend.
 
+#include "iwlomap/outofcore_tile_mapper.h"
 #include "iwlomap/probability_updater.h"
 #include "iwlomap/ray_caster.h"
 #include "iwlomap/synthetic_scan.h"
 
+#include "backend_test_support.h"
 
 #include <gtest/gtest.h>
 
@@ -258,6 +260,73 @@ TEST(ProbabilityUpdater, MatchesDenseReferenceWhenRandomBatches) {
   ASSERT_EQ(neg.rows(), half.rows());
   EXPECT_TRUE(neg == half);
   EXPECT_EQ(map.get_occupied_voxels(1.0).rows(), 0);
+}
+
+// A large batch of scattered points is applied block by block (each block found once, its rows
+// in call order); one of fewer rows, or slices of it, in call order. Both must give the same map,
+// down to the order for_each_voxel() visits it in, and the same as the Disk backend's values.
+TEST(ProbabilityUpdater, GivesTheSameMapWhenAScatteredBatchIsAppliedWholeOrInSlices) {
+  const double r = 0.05;
+  const Eigen::Index n = 120000;
+  std::mt19937_64 rng(2711u);
+  std::uniform_real_distribution<double> xy(-6.0, 6.0), z(-1.5, 1.5), unit(0.0, 1.0);
+  Eigen::MatrixXd points(n, 3);
+  Eigen::VectorXd intensities(n), weights(n);
+  std::vector<bool> flags(static_cast<std::size_t>(n));
+  for (Eigen::Index i = 0; i < n; ++i) {
+    // Every 5th row observes the voxel of one of the 20 rows before it again: per-voxel order counts.
+    if (i > 20 && i % 5 == 0)
+      points.row(i) = points.row(i - 1 - static_cast<Eigen::Index>(rng() % 20));
+    else
+      points.row(i) << xy(rng), xy(rng), z(rng);
+    intensities[i] = unit(rng) < 0.5 ? 255.0 * unit(rng) : static_cast<double>(rng() % 256);
+    flags[static_cast<std::size_t>(i)] = unit(rng) < 0.6;
+    weights[i] = unit(rng) < 0.1 ? 0.0 : 2.0 * unit(rng);
+  }
+  for (Eigen::Index i = 3; i < n; i += 1001) points(i, 2) = kNaN;  // skipped rows
+  IwloParams params;
+  params.intensity_threshold = 35.0;
+
+  using Visit = std::tuple<VoxelKey, double, std::uint32_t>;
+  const auto visits = [](const IMapperBackend& m) {
+    std::vector<Visit> v;
+    m.for_each_voxel([&v](const VoxelKey& k, const VoxelState& s) { v.emplace_back(k, s.log_odds, s.count); });
+    return v;
+  };
+  for (const bool weighted : {false, true}) {
+    SCOPED_TRACE(weighted ? "weighted" : "unweighted");
+    ProbabilityUpdater whole(r), sliced(r);
+    whole.set_params(params);
+    sliced.set_params(params);
+    const test_support::TempDir dir;
+    OutofcoreTileMapper disk(dir.sub("map"), r);
+    disk.set_params(params);
+    const auto apply = [&](IMapperBackend& m, Eigen::Index from, Eigen::Index rows) {
+      const Eigen::MatrixXd p = points.middleRows(from, rows);
+      const Eigen::VectorXd in = intensities.segment(from, rows);
+      const std::vector<bool> f(flags.begin() + from, flags.begin() + from + rows);
+      if (weighted)
+        m.batch_update_iwlo(p, in, f, Eigen::VectorXd(weights.segment(from, rows)));
+      else
+        m.batch_update_iwlo(p, in, f);
+    };
+    // Twice over: into new voxels, then into known ones.
+    for (int pass = 0; pass < 2; ++pass) {
+      apply(whole, 0, n);
+      apply(disk, 0, n);
+      for (Eigen::Index from = 0; from < n; from += 15000) apply(sliced, from, std::min<Eigen::Index>(15000, n - from));
+    }
+    EXPECT_EQ(whole.get_num_skipped_points(), sliced.get_num_skipped_points());
+    EXPECT_EQ(whole.get_num_nodes(), sliced.get_num_nodes());
+    EXPECT_EQ(whole.get_num_nodes(), disk.get_num_nodes());
+    const std::vector<Visit> a = visits(whole), b = visits(sliced);
+    ASSERT_EQ(a.size(), whole.get_num_nodes());
+    EXPECT_TRUE(a == b) << "the maps differ in values or in the order they are visited in";
+    std::vector<Visit> c = visits(disk), sorted_a = a;
+    std::sort(c.begin(), c.end());
+    std::sort(sorted_a.begin(), sorted_a.end());
+    EXPECT_TRUE(sorted_a == c) << "the RAM and Disk backends differ";
+  }
 }
 
 // ---- insert_scan -----------------------------------------------------------------------------

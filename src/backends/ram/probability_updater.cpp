@@ -6,6 +6,7 @@
 #include "integrate/absolute_log_odds.h"
 #include "integrate/batch_apply.h"
 #include "integrate/batch_input.h"
+#include "integrate/block_sorted_batch.h"
 #include "integrate/voxel_update.h"
 #include "storage/block_grid.h"
 #include "storage/grid_reads.h"
@@ -37,6 +38,17 @@ struct ProbabilityUpdater::Impl {
                    const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights) {
     const std::size_t skip = detail::validate_batch(points, intensities, is_occupied, weights, resolution);
     if (points.rows() == 0) return;
+    const detail::FloorDivider divide(resolution);
+    if (detail::BlockSortedBatch::suits(points, intensities, skip, divide)) {
+      // Scattered points: regrouped by block (block_sorted_batch.h), for the same map. The
+      // scratch lives for this call only (12 bytes a row).
+      detail::BlockSortedBatch sorted;
+      if (sorted.build(points, intensities, is_occupied, skip, divide)) {
+        skipped += skip;
+        detail::apply_block_sorted(sorted, grid, {intensities, is_occupied, weights}, updater, known);
+        return;
+      }
+    }
     struct Locate {
       detail::BlockGrid& grid_;
       detail::VoxelBlock& block(std::size_t, const VoxelKey& block_key, std::size_t slot) {
