@@ -41,7 +41,7 @@ struct ProbabilityUpdater::Impl {
     const detail::FloorDivider divide(resolution);
     if (detail::BlockSortedBatch::suits(points, intensities, skip, divide)) {
       // Scattered points: regrouped by block (block_sorted_batch.h), for the same map. The
-      // scratch lives for this call only (12 bytes a row).
+      // scratch (20 bytes a row) lives for this call only.
       detail::BlockSortedBatch sorted;
       if (sorted.build(points, intensities, is_occupied, skip, divide)) {
         skipped += skip;
