@@ -72,7 +72,8 @@ bool BlockSortedBatch::build(const Eigen::MatrixXd& points, const Eigen::VectorX
   const std::int64_t ex = std::int64_t{b1.x} - b0.x + 1, ey = std::int64_t{b1.y} - b0.y + 1,
                      ez = std::int64_t{b1.z} - b0.z + 1;
   const auto limit = static_cast<std::int64_t>(2 * n + 65536);
-  if (ex > limit || ey > limit || ez > limit || ex * ey > limit || ex * ey * ez > limit) return false;
+  // Checked factor by factor, so that no product can overflow.
+  if (ex > limit || ey > limit / ex || ez > limit / (ex * ey)) return false;
 
   // Slots in the order of each block's first row, and the rows of each slot counted.
   const std::unique_ptr<ChunkKeys> keys(new ChunkKeys);
