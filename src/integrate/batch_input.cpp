@@ -6,7 +6,6 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
-#include <memory>
 #include <sstream>
 #include <stdexcept>
 
@@ -114,21 +113,13 @@ std::size_t prepare_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& 
   // Sized up front and written field by field: building an Observation on the stack and copying
   // it made every point wait for a store-forwarding stall (three narrow stores, one wide load).
   out.resize(static_cast<std::size_t>(n) - skipped);
-  const FloorDivider divide(resolution);
-  // Default-initialised (not make_unique's zeroing of 26 KiB): compute() writes what is read.
-  const std::unique_ptr<ChunkKeys> keys(new ChunkKeys);
   std::size_t kept = 0;
-  for (Eigen::Index begin = 0; begin < n; begin += static_cast<Eigen::Index>(ChunkKeys::kRows)) {
-    const auto rows = static_cast<std::size_t>(std::min<Eigen::Index>(n - begin, ChunkKeys::kRows));
-    keys->compute(points, begin, rows, divide);
-    for (std::size_t r = 0; r < rows; ++r) {
-      const Eigen::Index i = begin + static_cast<Eigen::Index>(r);
-      if (skipped != 0 && !row_is_finite(points, intensities, i)) continue;
-      Observation& o = out[kept++];
-      o.key = (*keys)[r];
-      o.row = static_cast<std::uint32_t>(i);
-    }
-  }
+  for_each_finite_key(points, intensities, static_cast<std::size_t>(n), skipped != 0, FloorDivider(resolution),
+                      [&](std::size_t row, const VoxelKey& key) {
+                        Observation& o = out[kept++];
+                        o.key = key;
+                        o.row = static_cast<std::uint32_t>(row);
+                      });
   return skipped;
 }
 

@@ -10,11 +10,13 @@
 
 #include <Eigen/Core>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -152,6 +154,25 @@ class ChunkKeys {
 /// are skipped (a non-finite point or intensity); the others are to be applied.
 std::size_t validate_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                            const std::vector<bool>& is_occupied, const Eigen::VectorXd* weights, double resolution);
+
+/// Calls fn(row, key) for every finite row among the first \p rows rows of a batch that
+/// validate_batch() accepted, in order, with keys from ChunkKeys::compute(), a chunk at a time.
+/// \p any_skipped: validate_batch() counted non-finite rows (otherwise no row is checked).
+template <class Fn>
+void for_each_finite_key(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities, std::size_t rows,
+                         bool any_skipped, const FloorDivider& divide, Fn&& fn) {
+  // Default-initialised (not make_unique's zeroing of 26 KiB): compute() writes what is read.
+  const std::unique_ptr<ChunkKeys> keys(new ChunkKeys);
+  for (std::size_t begin = 0; begin < rows; begin += ChunkKeys::kRows) {
+    const std::size_t count = std::min(rows - begin, ChunkKeys::kRows);
+    keys->compute(points, static_cast<Eigen::Index>(begin), count, divide);
+    for (std::size_t r = 0; r < count; ++r) {
+      const std::size_t row = begin + r;
+      if (any_skipped && !row_is_finite(points, intensities, static_cast<Eigen::Index>(row))) continue;
+      fn(row, (*keys)[r]);
+    }
+  }
+}
 
 /// Validates a batch (validate_batch()) and converts it to observations in
 /// \p out (cleared first). Non-finite points or intensities are skipped; returns how many.

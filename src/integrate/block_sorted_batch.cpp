@@ -6,27 +6,11 @@
 
 #include <algorithm>
 #include <limits>
-#include <memory>
 
 namespace iwlomap::detail {
 namespace {
 
 constexpr std::uint32_t kNoSlot = std::numeric_limits<std::uint32_t>::max();
-
-// Calls fn(row, key) for every finite row of the batch, in order, keys computed chunk by chunk.
-template <class Fn>
-void for_each_key(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities, std::size_t rows,
-                  bool any_skipped, const FloorDivider& divide, ChunkKeys& keys, Fn&& fn) {
-  for (std::size_t begin = 0; begin < rows; begin += ChunkKeys::kRows) {
-    const std::size_t count = std::min(rows - begin, ChunkKeys::kRows);
-    keys.compute(points, static_cast<Eigen::Index>(begin), count, divide);
-    for (std::size_t r = 0; r < count; ++r) {
-      const std::size_t row = begin + r;
-      if (any_skipped && !row_is_finite(points, intensities, static_cast<Eigen::Index>(row))) continue;
-      fn(row, keys[r]);
-    }
-  }
-}
 
 }  // namespace
 
@@ -34,14 +18,13 @@ bool BlockSortedBatch::suits(const Eigen::MatrixXd& points, const Eigen::VectorX
                              const FloorDivider& divide) {
   const auto n = static_cast<std::size_t>(points.rows());
   if (n - skipped < kMinRows) return false;
-  const std::unique_ptr<ChunkKeys> keys(new ChunkKeys);
   FlatKeyMap distinct;
   std::size_t seen = 0;
-  for_each_key(points, intensities, std::min(n, kSampleRows), skipped != 0, divide, *keys,
-               [&](std::size_t, const VoxelKey& k) {
-                 distinct.insert(block_of(k), 0);
-                 ++seen;
-               });
+  for_each_finite_key(points, intensities, std::min(n, kSampleRows), skipped != 0, divide,
+                      [&](std::size_t, const VoxelKey& k) {
+                        distinct.insert(block_of(k), 0);
+                        ++seen;
+                      });
   return distinct.size() * 4 > seen;
 }
 
@@ -76,12 +59,11 @@ bool BlockSortedBatch::build(const Eigen::MatrixXd& points, const Eigen::VectorX
   if (ex > limit || ey > limit / ex || ez > limit / (ex * ey)) return false;
 
   // Slots in the order of each block's first row, and the rows of each slot counted.
-  const std::unique_ptr<ChunkKeys> keys(new ChunkKeys);
   dense_.assign(static_cast<std::size_t>(ex * ey * ez), kNoSlot);
   slot_of_.assign(n, kNoSlot);
   keys_.clear();
   begin_.clear();
-  for_each_key(points, intensities, n, any_skipped, divide, *keys, [&](std::size_t row, const VoxelKey& k) {
+  for_each_finite_key(points, intensities, n, any_skipped, divide, [&](std::size_t row, const VoxelKey& k) {
     const VoxelKey b = block_of(k);
     const auto at = static_cast<std::size_t>(((b.z - b0.z) * ey + (b.y - b0.y)) * ex + (b.x - b0.x));
     std::uint32_t s = dense_[at];
@@ -105,7 +87,7 @@ bool BlockSortedBatch::build(const Eigen::MatrixXd& points, const Eigen::VectorX
   // again (cheaper than keeping 12 bytes a row between the passes).
   entries_.resize(sum);
   std::vector<std::uint32_t> next(begin_.begin(), begin_.end() - 1);
-  for_each_key(points, intensities, n, any_skipped, divide, *keys, [&](std::size_t row, const VoxelKey& k) {
+  for_each_finite_key(points, intensities, n, any_skipped, divide, [&](std::size_t row, const VoxelKey& k) {
     Entry& e = entries_[next[slot_of_[row]]++];
     e.intensity = intensities[static_cast<Eigen::Index>(row)];
     e.row = static_cast<std::uint32_t>(row);
