@@ -11,8 +11,9 @@
 /// Errors: size mismatches and invalid parameters throw std::invalid_argument naming the value;
 /// a call that throws for its input changes nothing. When memory runs out (std::bad_alloc) the map
 /// stays consistent, but a batch may be partly applied (the RAM and Disk backends apply batches in
-/// groups of 8,192 rows; the RAM backend applies a large batch of scattered points block by block). Non-finite points are skipped and counted (get_num_skipped_points()). An empty
-/// batch is a no-op.
+/// groups of 8,192 rows; the RAM backend applies a large batch of scattered points block by
+/// block). Non-finite points are skipped and counted (get_num_skipped_points()). An empty batch
+/// is a no-op.
 
 #include "iwlomap/hit_statistics.h"
 #include "iwlomap/iwlo.h"

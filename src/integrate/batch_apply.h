@@ -3,8 +3,9 @@
 
 // The batch kernel of the backends that keep voxels in block grids (RAM, and the Disk backend's
 // resident tiles): applies a batch's observations in call order, each as one IWLO observation
-// (the RAM backend sends large batches of scattered points to block_sorted_batch.h instead). Where a block lives is the caller's policy (Locate); which rows are applied and
-// their keys come from a Rows source. In groups of kGroupRows observations:
+// (the RAM backend sends large batches of scattered points to block_sorted_batch.h instead).
+// Where a block lives is the caller's policy (Locate); which rows are applied and their keys come
+// from a Rows source. In groups of kGroupRows observations:
 //   1. resolve: every observation's block (created if missing) and in-block index, computed for a
 //      chunk of rows at a time (ChunkTargets), noting in each block the cells it lacks;
 //   2. allocate: those cells, once per block and group (one allocation per block instead of one

@@ -40,9 +40,10 @@ class BlockSortedBatch {
     std::uint8_t occupied_flag;
   };
 
-  /// Whether a batch of \p rows rows (of which \p skipped are non-finite) should be regrouped:
-  /// at least kMinRows rows, and among the first kSampleRows finite rows, more than half are in
-  /// a different block from the row before (a scan's points change block every few rows at most).
+  /// Whether a validated batch (of which \p skipped rows are non-finite) should be regrouped: at
+  /// least kMinRows finite rows, and the finite rows among the first kSampleRows fall in more
+  /// distinct blocks than a quarter of their number (fewer than 4 rows a block; a scan's points
+  /// give each block many rows).
   [[nodiscard]] static bool suits(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                                   std::size_t skipped, const FloorDivider& divide);
 
