@@ -66,6 +66,7 @@ class BlockSortedBatch {
   std::vector<VoxelKey> keys_;           // block key of each slot
   std::vector<std::uint32_t> begin_;     // slot s owns entries_[begin_[s], begin_[s + 1])
   std::vector<std::uint32_t> slot_of_;   // per row; kNoSlot for a skipped row
+  std::vector<std::uint16_t> index_of_;  // per row: index_in_block()
   std::vector<std::uint32_t> dense_;     // block's position in the box -> slot
   std::vector<Entry> entries_;
 };

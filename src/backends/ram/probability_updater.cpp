@@ -41,7 +41,7 @@ struct ProbabilityUpdater::Impl {
     const detail::FloorDivider divide(resolution);
     if (detail::BlockSortedBatch::suits(points, intensities, skip, divide)) {
       // Scattered points: regrouped by block (block_sorted_batch.h), for the same map. The
-      // scratch (20 bytes a row and a table of at most 8) lives for this call only.
+      // scratch (22 bytes a row and a table of at most 8) lives for this call only.
       detail::BlockSortedBatch sorted;
       if (sorted.build(points, intensities, is_occupied, skip, divide)) {
         skipped += skip;
