@@ -53,13 +53,15 @@
 //             mid-range, the second leg 6 dB brighter, and mud (reflectivity 0.2) from x = 14 m.
 // --dump PREFIX: writes the truth sets and every method's occupied voxels as x y z text files.
 // --drift F:  instead of the tables above, the survey with navigation drift (F of the distance
-//             travelled, see sonar_sim.h) mapped by IWLO (defaults) three ways: at the true poses,
+//             travelled, see sonar_sim.h) mapped by IWLO (defaults): at the true poses,
 //             at the drifted navigation poses, and at the navigation poses corrected by
 //             registration (RegisteredSonarMapper, submaps of --submap-pings pings, default 80)
 //             against the map it builds; and, as a repeat survey, registered against the map of an
 //             earlier survey of the site (seed + 1000, true poses) and mapped alone at the poses
-//             found. With the pose errors before and after registration. Needs the registration
-//             layer.
+//             found; and the ceiling of registration against its own map (the return leg given,
+//             where its footprint crosses the first leg's, that leg's navigation error: what an
+//             exact registration against the map drawn at the first leg's poses would give). With
+//             the pose errors before and after registration. Needs the registration layer.
 //             Variants of the registration: --coarse (branch and bound before ICP), --six-dof
 //             (ICP in 6 DoF instead of x, y, yaw), --no-rmse-limit (accept any converged fit);
 //             --submaps prints each submap's registration to standard error.
@@ -78,6 +80,7 @@
 #endif
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -607,6 +610,61 @@ int run_drift(const Options& opt, const iwlomap::SonarImageProjector& projector,
         corrected_error.add(pose_error(sim.pings[ping++].pose, pose));
     }
 
+    // The ceiling of registration against its own map: a ping whose seabed the survey saw before,
+    // from the other heading, is given that earlier ping's navigation error (as a perfect
+    // registration of it against the map drawn at the earlier navigation poses would), and a ping
+    // after it keeps that correction; pings before the first such overlap keep their navigation
+    // poses. The floor is claimed occupied where a ping's fan first reaches it: the near-edge ring,
+    // altitude / tan(pitch + aperture / 2) ahead across the horizontal field of view; two pings
+    // saw the same seabed where their rings cross (sampled at 33 bearings, within 0.15 m).
+    ProbabilityUpdater ceiling_map(opt.resolution);
+    ceiling_map.set_params(iwlo);
+    ErrorStats ceiling_error;
+    std::size_t ceiling_matched = 0;  // pings that crossed an earlier ring
+    {
+      const double pi = 3.14159265358979323846;
+      const double ahead = so.altitude / std::tan((so.pitch_deg + so.vertical_aperture_deg / 2.0) * pi / 180.0);
+      const auto heading = [](const Eigen::Isometry3d& pose) {
+        const Eigen::Vector3d f = pose.linear().col(0);
+        return std::atan2(f.y(), f.x());
+      };
+      constexpr int kRing = 33;
+      const auto ring = [&](const Eigen::Isometry3d& pose) {
+        std::array<Eigen::Vector2d, kRing> r;
+        for (int b = 0; b < kRing; ++b) {
+          const double a = heading(pose) + (b / (kRing - 1.0) - 0.5) * so.horizontal_fov_deg * pi / 180.0;
+          r[static_cast<std::size_t>(b)] = pose.translation().head<2>() + ahead * Eigen::Vector2d(std::cos(a), std::sin(a));
+        }
+        return r;
+      };
+      Eigen::Isometry3d correction = Eigen::Isometry3d::Identity();  // map pose = correction * navigation pose
+      for (std::size_t i = 0; i < sim.pings.size(); ++i) {
+        const bench::SimulatedPing& p = sim.pings[i];
+        const auto ri = ring(p.pose);
+        std::size_t best = i;
+        double best_d = 0.15;
+        for (std::size_t j = 0; j < i; ++j) {
+          const bench::SimulatedPing& q = sim.pings[j];
+          if (std::cos(heading(q.pose) - heading(p.pose)) >= 0.0) continue;
+          const auto rj = ring(q.pose);
+          for (const Eigen::Vector2d& a : ri)
+            for (const Eigen::Vector2d& b : rj)
+              if ((a - b).norm() < best_d) {
+                best_d = (a - b).norm();
+                best = j;
+              }
+        }
+        if (best != i) {
+          ++ceiling_matched;
+          const bench::SimulatedPing& q = sim.pings[best];
+          correction = (q.nav_pose * q.pose.inverse()) * (p.pose * p.nav_pose.inverse());
+        }
+        const Eigen::Isometry3d pose = correction * p.nav_pose;
+        ceiling_error.add(pose_error(p.pose, pose));
+        static_cast<void>(projector.integrate(ceiling_map, make_sonar_image_view(p.image), sim.geometry, pose));
+      }
+    }
+
     const auto corridor = [&](const VoxelKey& k) { return in_corridor(k, so, opt.resolution); };
     const KeySet truth_inside = restrict_to(sim.footprint_truth, corridor);
     const KeySet visible_inside = restrict_to(sim.visible_truth, corridor);
@@ -614,9 +672,10 @@ int run_drift(const Options& opt, const iwlomap::SonarImageProjector& projector,
         {"true poses", &truth_map},
         {"drifted navigation", &drifted_map},
         {"drifted, registered", registered_map.get()},
-        {"drifted, registered against an earlier survey's map", &repeat_map}};
-    double f1s[2][4] = {};
-    for (int m = 0; m < 4; ++m) {
+        {"drifted, registered against an earlier survey's map", &repeat_map},
+        {"drifted, return leg aligned to the first exactly (own-map ceiling)", &ceiling_map}};
+    double f1s[2][5] = {};
+    for (int m = 0; m < 5; ++m) {
       const ScoredVoxels voxels = probabilities(*maps[m].second);
       if (!opt.dump.empty())
         dump(opt.dump + noise.name + "_drift" + std::to_string(m) + ".xyz", above(voxels, iwlo.occupied_threshold),
@@ -634,16 +693,19 @@ int run_drift(const Options& opt, const iwlomap::SonarImageProjector& projector,
       const double lost = f1s[region][0] - f1s[region][1];
       return lost > 0.0 ? 100.0 * (f1s[region][m] - f1s[region][1]) / lost : 0.0;
     };
-    char line[1024];
+    char line[1536];
     std::snprintf(line, sizeof line,
                   "%s noise: %zu pings; navigation error %s, final %.3f m. Registered against its own map: %zu of "
                   "%zu submaps, pose error %s, recovering %.0f %% (all voxels) and %.0f %% (corridor) of the F1 "
                   "lost to drift, %.1f s. Registered against the earlier survey's map: %zu of %zu submaps, pose "
-                  "error %s, recovering %.0f %% and %.0f %%",
+                  "error %s, recovering %.0f %% and %.0f %%. Own-map ceiling (a ping given the navigation error of an "
+                  "earlier ping of the other heading that saw the same seabed, %zu of %zu pings): pose error %s, "
+                  "recovering %.0f %% and %.0f %%",
                   noise.name.c_str(), sim.pings.size(), nav_error.text().c_str(),
                   (sim.pings.back().pose.translation() - sim.pings.back().nav_pose.translation()).norm(), registered,
                   submaps.size(), corrected_error.text().c_str(), recovered(0, 2), recovered(1, 2), register_seconds,
-                  chart_registered, chart_submaps.size(), chart_error.text().c_str(), recovered(0, 3), recovered(1, 3));
+                  chart_registered, chart_submaps.size(), chart_error.text().c_str(), recovered(0, 3), recovered(1, 3),
+                  ceiling_matched, sim.pings.size(), ceiling_error.text().c_str(), recovered(0, 4), recovered(1, 4));
     notes.emplace_back(line);
   }
   print_tables(rows, notes, "map");
