@@ -498,10 +498,12 @@ void print_tables(const std::vector<std::string> (&rows)[2], const std::vector<s
   for (const std::string& n : notes) std::printf("- %s\n", n.c_str());
 }
 
+constexpr double kPi = 3.14159265358979323846;
+
 // Position (m) and rotation (degrees) between two poses.
 std::pair<double, double> pose_error(const Eigen::Isometry3d& a, const Eigen::Isometry3d& b) {
   const Eigen::AngleAxisd turn(a.linear().transpose() * b.linear());
-  return {(a.translation() - b.translation()).norm(), std::abs(turn.angle()) * 180.0 / 3.14159265358979323846};
+  return {(a.translation() - b.translation()).norm(), std::abs(turn.angle()) * 180.0 / kPi};
 }
 
 struct ErrorStats {
@@ -622,33 +624,29 @@ int run_drift(const Options& opt, const iwlomap::SonarImageProjector& projector,
     ErrorStats ceiling_error;
     std::size_t ceiling_matched = 0;  // pings that crossed an earlier ring
     {
-      const double pi = 3.14159265358979323846;
-      const double ahead = so.altitude / std::tan((so.pitch_deg + so.vertical_aperture_deg / 2.0) * pi / 180.0);
-      const auto heading = [](const Eigen::Isometry3d& pose) {
-        const Eigen::Vector3d f = pose.linear().col(0);
-        return std::atan2(f.y(), f.x());
-      };
+      // Each ping's heading (radians) and near-edge ring, at its true pose, computed once.
+      const double ahead = so.altitude / std::tan((so.pitch_deg + so.vertical_aperture_deg / 2.0) * kPi / 180.0);
       constexpr int kRing = 33;
-      const auto ring = [&](const Eigen::Isometry3d& pose) {
-        std::array<Eigen::Vector2d, kRing> r;
+      std::vector<double> heading(sim.pings.size());
+      std::vector<std::array<Eigen::Vector2d, kRing>> ring(sim.pings.size());
+      for (std::size_t i = 0; i < sim.pings.size(); ++i) {
+        const Eigen::Isometry3d& pose = sim.pings[i].pose;
+        heading[i] = std::atan2(pose.linear()(1, 0), pose.linear()(0, 0));
         for (int b = 0; b < kRing; ++b) {
-          const double a = heading(pose) + (b / (kRing - 1.0) - 0.5) * so.horizontal_fov_deg * pi / 180.0;
-          r[static_cast<std::size_t>(b)] = pose.translation().head<2>() + ahead * Eigen::Vector2d(std::cos(a), std::sin(a));
+          const double a = heading[i] + (b / (kRing - 1.0) - 0.5) * so.horizontal_fov_deg * kPi / 180.0;
+          ring[i][static_cast<std::size_t>(b)] =
+              pose.translation().head<2>() + ahead * Eigen::Vector2d(std::cos(a), std::sin(a));
         }
-        return r;
-      };
+      }
       Eigen::Isometry3d correction = Eigen::Isometry3d::Identity();  // map pose = correction * navigation pose
       for (std::size_t i = 0; i < sim.pings.size(); ++i) {
         const bench::SimulatedPing& p = sim.pings[i];
-        const auto ri = ring(p.pose);
         std::size_t best = i;
         double best_d = 0.15;
         for (std::size_t j = 0; j < i; ++j) {
-          const bench::SimulatedPing& q = sim.pings[j];
-          if (std::cos(heading(q.pose) - heading(p.pose)) >= 0.0) continue;
-          const auto rj = ring(q.pose);
-          for (const Eigen::Vector2d& a : ri)
-            for (const Eigen::Vector2d& b : rj)
+          if (std::cos(heading[j] - heading[i]) >= 0.0) continue;
+          for (const Eigen::Vector2d& a : ring[i])
+            for (const Eigen::Vector2d& b : ring[j])
               if ((a - b).norm() < best_d) {
                 best_d = (a - b).norm();
                 best = j;
