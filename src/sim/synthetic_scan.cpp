@@ -1,10 +1,12 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "iwlomap/synthetic_scan.h"
 
+#include "sim/portable_random.h"
+#include "sim/ray_box.h"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <random>
 #include <stdexcept>
 #include <string>
 
@@ -24,42 +26,12 @@ struct Box {
 
 // Ray-box slab test; returns the entry distance and the normal of the entered face.
 bool hit_box(const Eigen::Vector3d& o, const Eigen::Vector3d& d, const Box& b, double& t, Eigen::Vector3d& n) {
-  double t0 = 0.0, t1 = std::numeric_limits<double>::infinity();
-  int axis = -1;
-  for (int i = 0; i < 3; ++i) {
-    if (std::abs(d[i]) < 1e-12) {
-      if (o[i] < b.lo[i] || o[i] > b.hi[i]) return false;
-      continue;
-    }
-    double a = (b.lo[i] - o[i]) / d[i], c = (b.hi[i] - o[i]) / d[i];
-    if (a > c) std::swap(a, c);
-    if (a > t0) {
-      t0 = a;
-      axis = i;
-    }
-    t1 = std::min(t1, c);
-    if (t0 > t1) return false;
-  }
-  if (axis < 0) return false;  // origin inside the box
-  t = t0;
+  int axis;
+  if (!detail::ray_box_entry(o, d, b.lo, b.hi, t, axis)) return false;
   n = Eigen::Vector3d::Zero();
   n[axis] = d[axis] > 0 ? -1.0 : 1.0;
   return true;
 }
-
-// Box-Muller on mt19937, whose output sequence the standard fixes (std::normal_distribution's is not).
-class Noise {
- public:
-  explicit Noise(std::uint32_t seed) : rng_(seed) {}
-  double gaussian() {
-    const double u1 = (static_cast<double>(rng_()) + 1.0) / 4294967297.0;
-    const double u2 = static_cast<double>(rng_()) / 4294967296.0;
-    return std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * kPi * u2);
-  }
-
- private:
-  std::mt19937 rng_;
-};
 
 }  // namespace
 
@@ -85,7 +57,7 @@ SyntheticScan make_synthetic_scan(const SyntheticScanOptions& opt) {
   const Eigen::Index n = static_cast<Eigen::Index>(opt.rings) * opt.columns;
   scan.points.resize(n, 3);
   scan.intensities.resize(n);
-  Noise noise(opt.seed);
+  detail::PortableRandom noise(opt.seed);
   const Eigen::Vector3d& o = scan.origin;
 
   Eigen::Index row = 0;
