@@ -4,6 +4,7 @@
 // A small reader of binary PCD files for the benchmark programs that do not link PCL.
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 #include <cmath>
 #include <cstddef>
@@ -19,6 +20,7 @@ namespace iwlomap::bench {
 // A binary PCD file with float32 fields x, y, z, intensity; VIEWPOINT gives the sensor origin.
 struct PcdCloud {
   Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+  Eigen::Quaterniond orientation = Eigen::Quaterniond::Identity();  // VIEWPOINT's qw qx qy qz
   Eigen::MatrixXd points;
   Eigen::VectorXd intensities;
   std::size_t non_finite = 0;  // points dropped because a coordinate or the intensity was not finite
@@ -93,6 +95,8 @@ inline PcdCloud read_pcd(const std::string& path) {
 
   PcdCloud c;
   if (viewpoint.size() >= 3) c.origin = Eigen::Vector3d(viewpoint[0], viewpoint[1], viewpoint[2]);
+  if (viewpoint.size() >= 7)
+    c.orientation = Eigen::Quaterniond(viewpoint[3], viewpoint[4], viewpoint[5], viewpoint[6]).normalized();
   c.points.resize(points, 3);
   c.intensities.resize(points);
   Eigen::Index n = 0;

@@ -9,6 +9,7 @@
 #include "iwlomap/probability_updater.h"
 #include "iwlomap/sensor_preset.h"
 #include "iwlomap/synthetic_scan.h"
+#include "iwlomap/synthetic_world.h"
 
 #include <gtest/gtest.h>
 
@@ -62,28 +63,7 @@ const Scene& courtyard() {
   return s;
 }
 
-// Ground 24 x 24 m and twelve pillars (radius 0.3 m, 3 m tall) around the sensor.
-Eigen::MatrixXd pillars(std::uint32_t seed, double noise) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  std::normal_distribution<double> e(0.0, noise);
-  std::vector<Eigen::Vector3d> pts;
-  for (int i = 0; i < 20000; ++i) pts.emplace_back(24 * u(rng) - 12, 24 * u(rng) - 12, e(rng));
-  std::mt19937 place(99);  // the same pillars in every sample
-  for (int k = 0; k < 12; ++k) {
-    const double a = 2 * kPi * k / 12 + 0.3 * u(place);
-    const double r = 4.0 + 6.0 * u(place);
-    const Eigen::Vector2d c(r * std::cos(a), r * std::sin(a));
-    for (int i = 0; i < 1500; ++i) {
-      const double t = 2 * kPi * u(rng);
-      const double rr = 0.3 + e(rng);
-      pts.emplace_back(c.x() + rr * std::cos(t), c.y() + rr * std::sin(t), 3.0 * u(rng));
-    }
-  }
-  Eigen::MatrixXd m(static_cast<Eigen::Index>(pts.size()), 3);
-  for (std::size_t i = 0; i < pts.size(); ++i) m.row(static_cast<Eigen::Index>(i)) = pts[i].transpose();
-  return m;
-}
+Eigen::MatrixXd pillars(std::uint32_t seed, double noise) { return make_pillar_scene(seed, noise); }
 
 const Scene& pillar_scene() {
   static const Scene s = make_scene(pillars(1, 0.005), pillars(2, 0.01), Eigen::Vector3d(0.3, -0.2, 1.2));
@@ -132,7 +112,10 @@ TEST(ScanMatcher, RecoversTheCourtyardPoseFromLargeInitialErrors) { expect_recov
 
 TEST(ScanMatcher, RecoversThePillarScenePoseFromLargeInitialErrors) { expect_recovery(pillar_scene(), 4); }
 
-TEST(ScanMatcher, ASinglePlaneIsReportedDegenerateWithItsFreeDirections) {
+// A single plane constrains z, roll and pitch only: refused as degenerate when asked to, and by
+// default accepted with x, y and yaw held at the initial pose and only the constrained directions
+// corrected.
+TEST(ScanMatcher, ASinglePlaneIsDegenerateAndItsFreeDirectionsAreHeldAtThePrior) {
   Eigen::MatrixXd plane(4000, 3);
   std::mt19937 rng(1);
   std::uniform_real_distribution<double> u(-8.0, 8.0);
@@ -140,7 +123,9 @@ TEST(ScanMatcher, ASinglePlaneIsReportedDegenerateWithItsFreeDirections) {
   const Scene s = make_scene(plane, plane, Eigen::Vector3d(0.0, 0.0, 1.5));
   ScanMatcherOptions o;
   o.coarse = false;  // a plane matches anywhere in x, y and yaw: only ICP can say so
-  const ScanMatchResult r = ScanMatcher(*s.map, o).match(s.scan_sensor, perturbed(s.truth, {0.3, 0.2, 0.05}, 0.02));
+  o.quality.hold_unconstrained = false;
+  const Eigen::Isometry3d initial = perturbed(s.truth, {0.3, 0.2, 0.05}, 0.02);
+  const ScanMatchResult r = ScanMatcher(*s.map, o).match(s.scan_sensor, initial);
   EXPECT_FALSE(r.converged);
   EXPECT_NE(r.reason.find("degenerate"), std::string::npos) << r.reason;
   ASSERT_EQ(r.unobservable.cols(), 3);
@@ -151,11 +136,48 @@ TEST(ScanMatcher, ASinglePlaneIsReportedDegenerateWithItsFreeDirections) {
   }
   EXPECT_GE(r.covariance(0, 0), 1e5);
   EXPECT_LT(r.covariance(2, 2), 1e-3);  // z is well constrained
-  EXPECT_TRUE(r.pose.isApprox(perturbed(s.truth, {0.3, 0.2, 0.05}, 0.02)));  // the initial pose, unchanged
+  EXPECT_TRUE(r.pose.isApprox(initial));  // the initial pose, unchanged
+
+  o.quality.hold_unconstrained = true;
+  const ScanMatchResult held = ScanMatcher(*s.map, o).match(s.scan_sensor, initial);
+  EXPECT_TRUE(held.converged) << held.reason;
+  EXPECT_EQ(held.held_directions, 3);
+  EXPECT_NEAR(held.pose.translation().z(), s.truth.translation().z(), 0.01);      // corrected
+  EXPECT_NEAR(held.pose.translation().x(), initial.translation().x(), 1e-6);      // held
+  EXPECT_NEAR(held.pose.translation().y(), initial.translation().y(), 1e-6);      // held
+  const Eigen::Matrix3d turn = held.pose.linear() * initial.linear().transpose();
+  EXPECT_NEAR(std::atan2(turn(1, 0), turn(0, 0)), 0.0, 1e-6);                     // yaw held
+  EXPECT_GE(held.covariance(0, 0), 1e5);
 }
 
-// Planar ICP: x, y and yaw are estimated, z, roll and pitch stay exactly those of the initial
-// pose (here 4 cm too high and tilted by 0.5 degrees about x), and their covariance is 0.
+// ICP alone from the identity pose (1.5 m below the courtyard's sensor) settles 0.8 m off with
+// every wall paired: without the match-quality model that is reported converged; with it, the
+// ground's poor fit refuses it.
+TEST(ScanMatcher, TheQualityModelRefusesAWrongPoseThatIcpReportsConverged) {
+  const Scene& s = courtyard();
+  ScanMatcherOptions o;
+  o.coarse = false;
+  ScanMatcherOptions off = o;
+  off.quality.min_inlier_fraction = 0.0;
+  off.quality.min_axis_support = 0.0;
+  off.quality.max_free_conflict = 1.0;
+  const Eigen::Isometry3d initial = Eigen::Isometry3d::Identity();
+  const ScanMatchResult wrong = ScanMatcher(*s.map, off).match(s.scan_sensor, initial);
+  ASSERT_TRUE(wrong.converged) << wrong.reason;
+  EXPECT_GT((wrong.pose.translation() - s.truth.translation()).norm(), 0.3);
+  const ScanMatchResult r = ScanMatcher(*s.map, o).match(s.scan_sensor, initial);
+  EXPECT_FALSE(r.converged);
+  EXPECT_NE(r.reason.find("match quality"), std::string::npos) << r.reason;
+  EXPECT_TRUE(r.pose.isApprox(initial));
+  EXPECT_LT(r.axis_support.z(), 0.7);
+  // At the true pose every statistic is near its best.
+  const ScanMatchResult right = ScanMatcher(*s.map, o).match(s.scan_sensor, s.truth);
+  EXPECT_TRUE(right.converged) << right.reason;
+  EXPECT_GT(right.inlier_fraction, 0.9);
+  EXPECT_GT(right.axis_support.minCoeff(), 0.9);
+  EXPECT_LT(right.free_conflict, 0.1);
+}
+
 TEST(ScanMatcher, PlanarIcpHoldsHeightRollAndPitch) {
   const Scene& s = pillar_scene();
   Eigen::Isometry3d initial = perturbed(s.truth, {0.15, -0.1, 0.04}, 2.0 * kDeg);

@@ -21,6 +21,7 @@ using Vector6d = Eigen::Matrix<double, 6, 1>;
 using Matrix6d = Eigen::Matrix<double, 6, 6>;
 
 constexpr int kNormalNeighbours = 8;
+constexpr double kDegree = 3.14159265358979323846 / 180.0;
 // The variance given to a direction the scene does not constrain (m^2 or rad^2): large enough that
 // a caller weighing the result ignores it there, finite so the matrix stays usable.
 constexpr double kUnobservableVariance = 1e6;
@@ -68,9 +69,30 @@ void IcpOptions::validate() const {
   positive("translation_tolerance", translation_tolerance);
   positive("rotation_tolerance", rotation_tolerance);
   positive("degeneracy_ratio", degeneracy_ratio);
+  positive("inlier_distance", inlier_distance);
+  if (!(overlap_distance >= inlier_distance) || !std::isfinite(overlap_distance))
+    throw std::invalid_argument("iwlomap: IcpOptions: overlap_distance = " + num(overlap_distance) +
+                                " must be finite and >= inlier_distance = " + num(inlier_distance));
   if (!(min_inlier_fraction >= 0.0 && min_inlier_fraction <= 1.0))
     throw std::invalid_argument("iwlomap: IcpOptions: min_inlier_fraction = " + num(min_inlier_fraction) +
                                 " must be in [0, 1]");
+}
+
+void MatchQualityOptions::validate() const {
+  const auto fraction = [](const char* name, double v) {
+    if (!(v >= 0.0 && v <= 1.0))
+      throw std::invalid_argument(std::string("iwlomap: MatchQualityOptions: ") + name + " = " + num(v) +
+                                  " must be in [0, 1]");
+  };
+  fraction("min_inlier_fraction", min_inlier_fraction);
+  fraction("min_axis_support", min_axis_support);
+  fraction("max_free_conflict", max_free_conflict);
+  if (!(max_coarse_disagreement > 0.0) || !std::isfinite(max_coarse_disagreement))
+    throw std::invalid_argument("iwlomap: MatchQualityOptions: max_coarse_disagreement = " +
+                                num(max_coarse_disagreement) + " must be finite and > 0");
+  if (!(edge_margin >= 0.0) || !std::isfinite(edge_margin))
+    throw std::invalid_argument("iwlomap: MatchQualityOptions: edge_margin = " + num(edge_margin) +
+                                " must be finite and >= 0");
 }
 
 void ScanMatcherOptions::validate() const {
@@ -86,6 +108,7 @@ void ScanMatcherOptions::validate() const {
   if (std::isnan(max_range) || std::isnan(scan_voxel) || std::isnan(min_probability) || std::isnan(coarse_max_range))
     throw std::invalid_argument("iwlomap: ScanMatcherOptions: max_range, scan_voxel and min_probability must not be NaN");
   icp.validate();
+  quality.validate();
 }
 
 Eigen::MatrixXd reduce_scan(const Eigen::MatrixXd& scan_sensor, double voxel, double max_range) {
@@ -202,7 +225,7 @@ const Eigen::MatrixXd& MapSurface::points() const noexcept { return impl_->point
 const Eigen::MatrixXd& MapSurface::normals() const noexcept { return impl_->normals; }
 
 ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eigen::Isometry3d& initial,
-                                  const IcpOptions& options) const {
+                                  const IcpOptions& options, const std::optional<Eigen::Isometry3d>& prior) const {
   options.validate();
   check_pose(initial);
   const std::vector<double> scan = finite_rows(scan_sensor);
@@ -313,23 +336,71 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
     }
   }
   result.iterations = it;
-  const System last = linearise(pose);
+  {
+    const Eigen::Isometry3d moved = pose * initial.inverse();
+    result.icp_shift = (pose.translation() - initial.translation()).norm();
+    result.icp_turn = Eigen::AngleAxisd(moved.linear()).angle();
+  }
+  System last = linearise(pose);
+  // Covariance and unobservable directions from the plain Hessian at the final pose.
+  auto eig = eigen_of(last.h_plain);
+  const auto weak_of = [&](const Eigen::SelfAdjointEigenSolver<Matrix6d>& e) {
+    std::vector<int> w;
+    const double top = e.eigenvalues().maxCoeff();
+    for (int k = 0; k < 6; ++k)
+      if (!(top > 0.0 && e.eigenvalues()[k] > options.degeneracy_ratio * top)) w.push_back(k);
+    return w;
+  };
+  std::vector<int> weak = weak_of(eig);
+  // Held directions: the correction from the prior, in the scaled coordinates of the steps, loses
+  // its components along the unconstrained eigenvectors (orthonormal there), so the pose keeps the
+  // prior's values along them; the constrained components are ICP's, which the flat directions do
+  // not change to first order.
+  if (prior && !weak.empty() && last.pairs >= 6) {
+    const Eigen::Isometry3d correction = pose * prior->inverse();
+    const Eigen::AngleAxisd turn(correction.linear());
+    Vector6d xi;
+    xi << correction.translation(), turn.axis() * turn.angle();
+    Vector6d xi_scaled = xi.cwiseQuotient(scale);
+    for (const int k : weak) xi_scaled -= eig.eigenvectors().col(k) * eig.eigenvectors().col(k).dot(xi_scaled);
+    pose = apply_step(scale.asDiagonal() * xi_scaled, *prior);
+    last = linearise(pose);
+    eig = eigen_of(last.h_plain);
+    result.held_directions = static_cast<int>(weak.size());
+  }
   result.pairs = last.pairs;
   result.score = static_cast<double>(last.pairs) / static_cast<double>(n);
   result.fitness_rmse = last.pairs > 0 ? std::sqrt(last.r2 / static_cast<double>(last.pairs)) : 0.0;
-  // Covariance and unobservable directions from the plain Hessian at the final pose.
-  const auto eig = eigen_of(last.h_plain);
+  // Quality at the final pose: a point is in the overlap when a map point lies within
+  // overlap_distance, and an inlier when it also lies within inlier_distance of that point's
+  // tangent plane (the plane, not the point: a sparse scan's rings fall between the map's). Per
+  // axis, the overlap's points weighted by how much their plane faces the axis (query, idx and
+  // dist2 hold the last pass).
+  {
+    const double near2 = options.overlap_distance * options.overlap_distance;
+    std::size_t inliers = 0, near = 0;
+    Eigen::Vector3d facing = Eigen::Vector3d::Zero(), facing_in = Eigen::Vector3d::Zero();
+    for (std::size_t i = 0; i < n; ++i) {
+      if (idx[i] < 0 || !(dist2[i] <= near2)) continue;
+      ++near;
+      const Eigen::Vector3d normal = s.normals.row(idx[i]).transpose();
+      const Eigen::Vector3d q(query[3 * i], query[3 * i + 1], query[3 * i + 2]);
+      const bool in = std::abs(normal.dot(q - s.points.row(idx[i]).transpose())) <= options.inlier_distance;
+      inliers += in ? 1 : 0;
+      facing += normal.cwiseAbs();
+      if (in) facing_in += normal.cwiseAbs();
+    }
+    result.inlier_fraction = static_cast<double>(inliers) / static_cast<double>(n);
+    result.overlap_fraction = static_cast<double>(near) / static_cast<double>(n);
+    for (int a = 0; a < 3; ++a) result.axis_support[a] = facing[a] > 0.0 ? facing_in[a] / facing[a] : 1.0;
+  }
   const double top = eig.eigenvalues().maxCoeff();
   const double sigma2 = last.pairs > 6 ? last.r2 / static_cast<double>(last.pairs - 6) : 0.0;
   Matrix6d cov_scaled = Matrix6d::Zero();
-  std::vector<int> weak;
+  weak = weak_of(eig);
   for (int k = 0; k < 6; ++k) {
     const Vector6d v = eig.eigenvectors().col(k);
-    if (top > 0.0 && eig.eigenvalues()[k] > options.degeneracy_ratio * top) {
-      cov_scaled += v * v.transpose() * (sigma2 / eig.eigenvalues()[k]);
-    } else {
-      weak.push_back(k);
-    }
+    if (top > 0.0 && eig.eigenvalues()[k] > options.degeneracy_ratio * top) cov_scaled += v * v.transpose() * (sigma2 / eig.eigenvalues()[k]);
   }
   // Back to metres and radians: cov = S cov_scaled S; unobservable directions in the same units.
   result.covariance = scale.asDiagonal() * cov_scaled * scale.asDiagonal();
@@ -349,7 +420,7 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
     result.reason = "too few correspondences: " + std::to_string(last.pairs) + " of " + std::to_string(n) +
                     " scan points within " + num(options.max_correspondence_distance) +
                     " m of the map (does the scan overlap the map near the initial pose?)";
-  } else if (!weak.empty()) {
+  } else if (!weak.empty() && !prior) {
     result.reason = "degenerate scene: " + std::to_string(weak.size()) +
                     " direction(s) of the pose are not constrained (see unobservable)";
   } else if (!settled) {
@@ -359,6 +430,23 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
     result.pose = pose;
   }
   return result;
+}
+
+Eigen::VectorXd MapSurface::distances(const Eigen::MatrixXd& points) const {
+  if (points.cols() != 3 && points.rows() > 0)
+    throw std::invalid_argument("iwlomap: MapSurface: the points have " + std::to_string(points.cols()) + " columns");
+  std::vector<double> query(static_cast<std::size_t>(points.rows()) * 3);
+  for (Eigen::Index i = 0; i < points.rows(); ++i)
+    for (int c = 0; c < 3; ++c)
+      query[3 * static_cast<std::size_t>(i) + static_cast<std::size_t>(c)] = std::isfinite(points(i, c)) ? points(i, c) : 0.0;
+  std::vector<int> idx;
+  std::vector<double> dist2;
+  impl_->nearest(query, static_cast<std::size_t>(points.rows()), idx, dist2);
+  Eigen::VectorXd out(points.rows());
+  for (Eigen::Index i = 0; i < points.rows(); ++i)
+    out[i] = points.row(i).allFinite() ? std::sqrt(dist2[static_cast<std::size_t>(i)])
+                                       : std::numeric_limits<double>::infinity();
+  return out;
 }
 
 // ---- ScanMatcher ------------------------------------------------------------------------------
@@ -377,6 +465,12 @@ ScanMatcher::ScanMatcher(IMapperBackend& map, const Eigen::MatrixXd& surface_poi
   if (options_.fine) surface_ = std::make_shared<const MapSurface>(surface_points);
 }
 
+ScanMatcher::ScanMatcher(IMapperBackend& map, std::shared_ptr<const MapSurface> surface, ScanMatcherOptions options)
+    : map_(map), options_(std::move(options)), surface_(std::move(surface)) {
+  options_.validate();
+  if (options_.fine && !surface_) throw std::invalid_argument("iwlomap: ScanMatcher: the surface is null");
+}
+
 ScanMatchResult ScanMatcher::match(const Eigen::MatrixXd& scan_sensor, const Eigen::Isometry3d& initial) const {
   check_pose(initial);
   const double voxel = options_.scan_voxel > 0.0 ? options_.scan_voxel : map_.get_resolution();
@@ -388,6 +482,7 @@ ScanMatchResult ScanMatcher::match(const Eigen::MatrixXd& scan_sensor, const Eig
   result.pose = initial;
   result.scan_points = static_cast<std::size_t>(scan.rows());
   Eigen::Isometry3d start = initial;
+  double coarse_yaw_step = 0.0;
   if (options_.coarse) {
     if (map_.get_num_nodes() == 0) {
       result.reason = "the map is empty";
@@ -409,8 +504,25 @@ ScanMatchResult ScanMatcher::match(const Eigen::MatrixXd& scan_sensor, const Eig
                                static_cast<std::size_t>(options_.coarse_points);
     Eigen::MatrixXd sample(static_cast<Eigen::Index>((near.size() + stride - 1) / stride), 3);
     for (Eigen::Index i = 0; i < sample.rows(); ++i) sample.row(i) = scan.row(near[static_cast<std::size_t>(i) * stride]);
-    const auto coarse = CorrelativeScanMatcher3D::for_scan(map_, sample, initial, options_.window, levels);
-    const CoarseMatch m = coarse.match(sample, initial, options_.window, options_.min_coarse_score);
+    const auto search = [&](const Eigen::Isometry3d& centre) {
+      const auto coarse = CorrelativeScanMatcher3D::for_scan(map_, sample, centre, options_.window, levels);
+      return coarse.match(sample, centre, options_.window, options_.min_coarse_score);
+    };
+    CoarseMatch m = search(initial);
+    // An optimum on the window's outermost cells or yaw steps may be the best the window holds of
+    // a pose beyond it: search once more around it, and refuse if that optimum lies on the edge
+    // again (edge_margin = 0 turns this off).
+    if (m.found && options_.quality.edge_margin > 0.0 &&
+        at_edge(m.pose, initial, m.yaw_step, map_.get_resolution())) {
+      const CoarseMatch again = search(m.pose);
+      if (again.found && at_edge(again.pose, m.pose, again.yaw_step, map_.get_resolution())) {
+        result.coarse_score = again.score;
+        result.reason = "match quality: the coarse optimum lies at the edge of the search window twice in a row; "
+                        "the pose lies beyond it (widen the window)";
+        return result;
+      }
+      if (again.found) m = again;
+    }
     result.coarse_score = m.score;
     if (!m.found) {
       result.reason = "coarse stage: " + m.reason + " (" + num(options_.min_coarse_score) +
@@ -418,6 +530,7 @@ ScanMatchResult ScanMatcher::match(const Eigen::MatrixXd& scan_sensor, const Eig
       return result;
     }
     start = m.pose;
+    coarse_yaw_step = m.yaw_step;
     if (!options_.fine) {
       result.pose = m.pose;
       result.score = m.score;
@@ -429,10 +542,70 @@ ScanMatchResult ScanMatcher::match(const Eigen::MatrixXd& scan_sensor, const Eig
     result.reason = "the map has fewer than 8 occupied voxels to align to";
     return result;
   }
-  ScanMatchResult fine = surface_->align(scan, start, options_.icp);
+  IcpOptions icp = options_.icp;
+  icp.inlier_distance = std::max(icp.inlier_distance, map_.get_resolution());
+  icp.overlap_distance = std::max(icp.overlap_distance, 2.0 * icp.inlier_distance);
+  const std::optional<Eigen::Isometry3d> prior =
+      options_.quality.hold_unconstrained ? std::optional<Eigen::Isometry3d>(initial) : std::nullopt;
+  ScanMatchResult fine = surface_->align(scan, start, icp, prior);
   fine.coarse_score = result.coarse_score;
-  if (!fine.converged) fine.pose = initial;
+  if (fine.converged) {
+    fine.free_conflict = free_conflict(scan, fine.pose, icp.inlier_distance);
+    fine.reason = quality_refusal(fine, icp, coarse_yaw_step);
+  }
+  if (!fine.reason.empty()) {
+    fine.converged = false;
+    fine.pose = initial;
+  }
   return fine;
+}
+
+double ScanMatcher::free_conflict(const Eigen::MatrixXd& scan, const Eigen::Isometry3d& pose, double inlier_distance) const {
+  if (!map_.supports(BackendFeature::kQuery)) return 0.0;
+  const Eigen::MatrixXd world = (scan * pose.linear().transpose()).rowwise() + pose.translation().transpose();
+  const Eigen::VectorXd away = surface_->distances(world);
+  std::size_t known = 0, conflicts = 0;
+  for (Eigen::Index i = 0; i < world.rows(); ++i) {
+    const std::optional<VoxelState> v = map_.query(world.row(i).transpose());
+    if (!v) continue;
+    ++known;
+    if (v->probability < 0.5 && away[i] > inlier_distance) ++conflicts;
+  }
+  return known > 0 ? static_cast<double>(conflicts) / static_cast<double>(known) : 0.0;
+}
+
+bool ScanMatcher::at_edge(const Eigen::Isometry3d& pose, const Eigen::Isometry3d& centre, double yaw_step,
+                          double resolution) const {
+  const double margin = options_.quality.edge_margin;
+  const Eigen::Vector3d dt = pose.translation() - centre.translation();
+  const Eigen::Matrix3d turn = pose.linear() * centre.linear().transpose();
+  const double dyaw = std::atan2(turn(1, 0), turn(0, 0));
+  const double edge_xy = options_.window.linear_xy - margin * resolution;
+  const double edge_yaw = options_.window.angular_yaw - margin * yaw_step;
+  return std::abs(dt.x()) > edge_xy || std::abs(dt.y()) > edge_xy || std::abs(dyaw) > edge_yaw;
+}
+
+std::string ScanMatcher::quality_refusal(const ScanMatchResult& r, const IcpOptions& icp,
+                                         double coarse_yaw_step) const {
+  const MatchQualityOptions& q = options_.quality;
+  const double res = map_.get_resolution();
+  if (r.inlier_fraction < q.min_inlier_fraction)
+    return "match quality: " + num(r.inlier_fraction) + " of the scan lies within " + num(icp.inlier_distance) +
+           " m of the map, below min_inlier_fraction " + num(q.min_inlier_fraction);
+  for (int a = 0; a < 3; ++a)
+    if (r.axis_support[a] < q.min_axis_support)
+      return std::string("match quality: the surfaces facing ") + "xyz"[a] + " fit at " +
+             num(r.axis_support[a]) + ", below min_axis_support " + num(q.min_axis_support);
+  if (r.free_conflict > q.max_free_conflict)
+    return "match quality: " + num(r.free_conflict) + " of the scan lies in space the map holds free, above " +
+           "max_free_conflict " + num(q.max_free_conflict);
+  if (options_.coarse) {
+    const double max_turn = std::max(q.max_coarse_disagreement * coarse_yaw_step, 1.0 * kDegree);
+    if (r.icp_shift > q.max_coarse_disagreement * res || r.icp_turn > max_turn)
+      return "match quality: ICP moved " + num(r.icp_shift) + " m and " + num(r.icp_turn / kDegree) +
+             " degrees from the coarse pose; the two stages disagree";
+  }
+  return {};
 }
 
 }  // namespace iwlomap::registration

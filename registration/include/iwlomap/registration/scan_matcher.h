@@ -24,6 +24,7 @@
 
 #include <cstddef>
 #include <memory>
+#include <optional>
 #include <string>
 
 namespace iwlomap::registration {
@@ -44,6 +45,46 @@ struct IcpOptions {
   /// the initial pose (for vehicles whose depth and attitude sensors observe them, such as an
   /// underwater vehicle's pressure sensor and inertial unit). Their covariance is then 0.
   bool planar = false;
+  /// Quality statistics at the final pose (ScanMatchResult::inlier_fraction, axis_support): a scan
+  /// point is in the overlap when a map point lies within overlap_distance (metres), and an inlier
+  /// when it also lies within inlier_distance (metres; > 0, <= overlap_distance) of that map
+  /// point's tangent plane.
+  double inlier_distance = 0.2;
+  double overlap_distance = 1.0;
+  /// Throws std::invalid_argument naming the first bad value.
+  void validate() const;
+};
+
+/// When a registration counts as converged. A pose that passes every test below is within the
+/// search's tolerance on the scenes it was calibrated on (docs/slam.md lists them and the
+/// figures); a pose that fails one is refused with the test's name in ScanMatchResult::reason and
+/// the initial pose kept, so a caller never integrates a wrong pose believing it right.
+struct MatchQualityOptions {
+  /// The fraction of the scan's points that are inliers (IcpOptions::inlier_distance, which
+  /// ScanMatcher raises to the map's resolution) must reach this.
+  double min_inlier_fraction = 0.25;
+  /// Of the points in the overlap (within overlap_distance of the surface), weighted by how much
+  /// their surface faces each map axis, the fraction that are inliers must reach this along x, y
+  /// and z: a pose that fits the ground but not the walls (or the walls but not the ground) is a
+  /// wrong pose.
+  double min_axis_support = 0.7;
+  /// Of the scan's points that fall in voxels the map knows, at most this fraction may fall in
+  /// voxels the map holds free (probability < 0.5) farther than inlier_distance from its surface:
+  /// a scan placed where the map has seen through is misplaced. Maps without free space (a voxel
+  /// cloud) do not test this.
+  double max_free_conflict = 0.2;
+  /// ICP may move the coarse stage's pose at most this many voxels (and the yaw at most this many
+  /// of the coarse stage's yaw steps, at least 1 degree): the coarse optimum and the fine one must
+  /// agree.
+  double max_coarse_disagreement = 2.5;
+  /// A coarse optimum within this many voxels (yaw: steps) of the search window's edge in x, y or
+  /// yaw may be the best the window holds of a pose beyond it: the search is repeated once around
+  /// it, and the scan refused when that optimum lies at the edge again (0: never).
+  double edge_margin = 0.5;
+  /// Along directions the scene does not constrain (ScanMatchResult::unobservable), keep the
+  /// initial pose and accept the constrained directions' correction (true), or refuse the scan as
+  /// degenerate (false).
+  bool hold_unconstrained = true;
   /// Throws std::invalid_argument naming the first bad value.
   void validate() const;
 };
@@ -76,6 +117,7 @@ struct ScanMatcherOptions {
   /// ICP target: voxels with probability above this (< 0: the map's occupied threshold).
   double min_probability = -1.0;
   IcpOptions icp;
+  MatchQualityOptions quality;
   void validate() const;
 };
 
@@ -96,6 +138,23 @@ struct ScanMatchResult {
   Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Identity();
   /// Unit 6-D directions (columns, same order as the covariance) the scene does not constrain.
   Eigen::Matrix<double, 6, Eigen::Dynamic> unobservable;
+  /// Quality at the final pose (see IcpOptions::inlier_distance): fraction of the scan's points
+  /// that are inliers, and that are in the overlap.
+  double inlier_fraction = 0.0;
+  double overlap_fraction = 0.0;
+  /// Per map axis x, y, z: of the overlapping points, weighted by |normal component| of their
+  /// nearest surface point along the axis, the inlier fraction (1 when no surface faces the axis).
+  Eigen::Vector3d axis_support = Eigen::Vector3d::Ones();
+  /// Fraction of the scan's points in known voxels that lie in voxels the map holds free, away from
+  /// its surface (0 when the map holds no free space or ScanMatcher did not test it).
+  double free_conflict = 0.0;
+  /// How far ICP moved the pose from where it started (the coarse stage's pose, or the initial
+  /// one), before unconstrained directions were held: metres and radians.
+  double icp_shift = 0.0;
+  double icp_turn = 0.0;
+  /// Directions kept at the initial pose because the scene does not constrain them
+  /// (MatchQualityOptions::hold_unconstrained); their covariance is kUnobservableVariance.
+  int held_directions = 0;
 };
 
 /// The ICP target: points of the map's surface with normals and a k-d tree. Immutable; built once
@@ -118,9 +177,16 @@ class MapSurface {
   [[nodiscard]] const Eigen::MatrixXd& normals() const noexcept;  ///< N x 3, unit
 
   /// Point-to-plane ICP of \p scan_sensor (N x 3, sensor frame) from \p initial (sensor to map).
+  /// A scene that leaves directions unconstrained gives converged = false ("degenerate scene"),
+  /// unless \p prior is given: the pose then keeps \p prior's values along those directions, takes
+  /// ICP's along the others, and may converge (held_directions counts them).
   /// Throws std::invalid_argument for an empty scan or a non-finite initial pose.
   [[nodiscard]] ScanMatchResult align(const Eigen::MatrixXd& scan_sensor, const Eigen::Isometry3d& initial,
-                                      const IcpOptions& options = {}) const;
+                                      const IcpOptions& options = {},
+                                      const std::optional<Eigen::Isometry3d>& prior = std::nullopt) const;
+
+  /// Distance (metres) from each row of \p points (N x 3, map frame) to the nearest surface point.
+  [[nodiscard]] Eigen::VectorXd distances(const Eigen::MatrixXd& points) const;
 
  private:
   struct Impl;
@@ -138,6 +204,9 @@ class ScanMatcher {
   /// better than voxel centres do (centres are up to half a voxel off the surface, and so can be
   /// the pose ICP finds against them).
   ScanMatcher(IMapperBackend& map, const Eigen::MatrixXd& surface_points, ScanMatcherOptions options = {});
+  /// As above, with a surface built earlier (shared, e.g. one per submap for many scans).
+  /// Throws std::invalid_argument for a null surface when the fine stage is on.
+  ScanMatcher(IMapperBackend& map, std::shared_ptr<const MapSurface> surface, ScanMatcherOptions options = {});
 
   /// Registers \p scan_sensor (N x 3, metres, sensor frame; non-finite rows skipped) near
   /// \p initial (sensor to map). Throws std::invalid_argument for a scan without a finite point
@@ -147,6 +216,16 @@ class ScanMatcher {
   [[nodiscard]] const ScanMatcherOptions& options() const noexcept { return options_; }
 
  private:
+  // ScanMatchResult::free_conflict of \p scan (sensor frame) at \p pose.
+  [[nodiscard]] double free_conflict(const Eigen::MatrixXd& scan, const Eigen::Isometry3d& pose,
+                                     double inlier_distance) const;
+  // Whether \p pose lies within edge_margin of the window around \p centre.
+  [[nodiscard]] bool at_edge(const Eigen::Isometry3d& pose, const Eigen::Isometry3d& centre, double yaw_step,
+                             double resolution) const;
+  // Why a converged ICP result fails MatchQualityOptions (empty when it passes).
+  [[nodiscard]] std::string quality_refusal(const ScanMatchResult& r, const IcpOptions& icp,
+                                            double coarse_yaw_step) const;
+
   IMapperBackend& map_;
   ScanMatcherOptions options_;
   std::shared_ptr<const MapSurface> surface_;  // null when the map has too few occupied voxels
