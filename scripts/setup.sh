@@ -9,6 +9,7 @@ PACKAGES=(build-essential cmake git pkg-config
   libgtest-dev libgmock-dev libbenchmark-dev
   octomap-tools pcl-tools xvfb xauth doxygen
   clang libclang-rt-14-dev
+  libceres-dev
   python3-dev python3-pybind11 python3-numpy python3-pytest)
 
 missing=()
