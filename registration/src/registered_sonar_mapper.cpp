@@ -47,6 +47,12 @@ std::shared_ptr<IMapperBackend> checked(std::shared_ptr<IMapperBackend> map, con
 RegisteredSonarMapperOptions::RegisteredSonarMapperOptions() {
   matcher.coarse = false;
   matcher.icp.planar = true;
+  // The match-quality model's thresholds were set on lidar scenes; sonar submaps keep its own
+  // residual test (max_fitness_rmse) until the model is calibrated on sonar surveys.
+  matcher.quality.min_inlier_fraction = 0.0;
+  matcher.quality.min_axis_support = 0.0;
+  matcher.quality.max_free_conflict = 1.0;
+  matcher.quality.hold_unconstrained = false;
 }
 
 SonarImageView RegisteredSonarMapper::Ping::view() const {
