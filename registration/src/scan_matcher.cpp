@@ -45,12 +45,14 @@ std::vector<double> finite_rows(const Eigen::MatrixXd& m) {
   return out;
 }
 
-Eigen::Isometry3d apply_step(const Vector6d& step, const Eigen::Isometry3d& pose) {
+// \p pose moved by \p step: a translation (first three) and a rotation vector (last three) about
+// \p pivot, both in the map frame.
+Eigen::Isometry3d apply_step(const Vector6d& step, const Eigen::Isometry3d& pose, const Eigen::Vector3d& pivot) {
   const Eigen::Vector3d w = step.tail<3>();
   const double angle = w.norm();
   Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();
   if (angle > 0.0) delta.linear() = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
-  delta.translation() = step.head<3>();
+  delta.translation() = step.head<3>() + pivot - delta.linear() * pivot;
   Eigen::Isometry3d out = delta * pose;
   out.linear() = Eigen::Quaterniond(out.linear()).normalized().toRotationMatrix();
   return out;
@@ -245,7 +247,14 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
     std::size_t pairs = 0;
     double r2 = 0.0;
   };
+  // Rotations are taken about the scan's centroid (the pivot), not the map's origin: a scan far
+  // from the origin (a submap's frame lies at its first scan) would otherwise couple rotation and
+  // translation so strongly that the system looks degenerate.
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  for (std::size_t i = 0; i < n; ++i) centre += Eigen::Vector3d(scan[3 * i], scan[3 * i + 1], scan[3 * i + 2]);
+  centre /= static_cast<double>(n);
   const auto linearise = [&](const Eigen::Isometry3d& pose) {
+    const Eigen::Vector3d pivot = pose * centre;
     for (std::size_t i = 0; i < n; ++i) {
       const Eigen::Vector3d q = pose * Eigen::Vector3d(scan[3 * i], scan[3 * i + 1], scan[3 * i + 2]);
       for (int c = 0; c < 3; ++c) query[3 * i + static_cast<std::size_t>(c)] = q[c];
@@ -258,7 +267,7 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
       const Eigen::Vector3d normal = s.normals.row(idx[i]).transpose();
       const double r = normal.dot(q - s.points.row(idx[i]).transpose());
       Vector6d j;
-      j << normal, q.cross(normal);
+      j << normal, (q - pivot).cross(normal);
       const double w = std::abs(r) <= options.huber_delta ? 1.0 : options.huber_delta / std::abs(r);
       sys.h += w * j * j.transpose();
       sys.h_plain += j * j.transpose();
@@ -270,9 +279,6 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
   };
   // Rotations are scaled by the scan's size so that the eigenvalues of translations and rotations
   // compare (a rotation of 1 / L radians moves the scan about as far as 1 m).
-  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
-  for (std::size_t i = 0; i < n; ++i) centre += Eigen::Vector3d(scan[3 * i], scan[3 * i + 1], scan[3 * i + 2]);
-  centre /= static_cast<double>(n);
   double spread = 0.0;
   for (std::size_t i = 0; i < n; ++i)
     spread += (Eigen::Vector3d(scan[3 * i], scan[3 * i + 1], scan[3 * i + 2]) - centre).squaredNorm();
@@ -328,7 +334,7 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
       if (eig.eigenvalues()[k] > options.degeneracy_ratio * top)
         step_scaled -= eig.eigenvectors().col(k) * (eig.eigenvectors().col(k).dot(gs) / eig.eigenvalues()[k]);
     const Vector6d step = scale.asDiagonal() * step_scaled;
-    pose = apply_step(step, pose);
+    pose = apply_step(step, pose, pose * centre);
     if (step.head<3>().norm() < options.translation_tolerance && step.tail<3>().norm() < options.rotation_tolerance) {
       settled = true;
       ++it;
@@ -359,11 +365,12 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
   if (prior && !weak.empty() && last.pairs >= 6) {
     const Eigen::Isometry3d correction = pose * prior->inverse();
     const Eigen::AngleAxisd turn(correction.linear());
-    Vector6d xi;
-    xi << correction.translation(), turn.axis() * turn.angle();
+    const Eigen::Vector3d pivot = *prior * centre;
+    Vector6d xi;  // the correction as a step about the pivot
+    xi << correction.translation() - pivot + correction.linear() * pivot, turn.axis() * turn.angle();
     Vector6d xi_scaled = xi.cwiseQuotient(scale);
     for (const int k : weak) xi_scaled -= eig.eigenvectors().col(k) * eig.eigenvectors().col(k).dot(xi_scaled);
-    pose = apply_step(scale.asDiagonal() * xi_scaled, *prior);
+    pose = apply_step(scale.asDiagonal() * xi_scaled, *prior, pivot);
     last = linearise(pose);
     eig = eigen_of(last.h_plain);
     result.held_directions = static_cast<int>(weak.size());
@@ -432,7 +439,7 @@ ScanMatchResult MapSurface::align(const Eigen::MatrixXd& scan_sensor, const Eige
   return result;
 }
 
-Eigen::VectorXd MapSurface::distances(const Eigen::MatrixXd& points) const {
+Eigen::VectorXd MapSurface::distances(const Eigen::MatrixXd& points, double reach) const {
   if (points.cols() != 3 && points.rows() > 0)
     throw std::invalid_argument("iwlomap: MapSurface: the points have " + std::to_string(points.cols()) + " columns");
   std::vector<double> query(static_cast<std::size_t>(points.rows()) * 3);
@@ -443,9 +450,16 @@ Eigen::VectorXd MapSurface::distances(const Eigen::MatrixXd& points) const {
   std::vector<double> dist2;
   impl_->nearest(query, static_cast<std::size_t>(points.rows()), idx, dist2);
   Eigen::VectorXd out(points.rows());
-  for (Eigen::Index i = 0; i < points.rows(); ++i)
-    out[i] = points.row(i).allFinite() ? std::sqrt(dist2[static_cast<std::size_t>(i)])
-                                       : std::numeric_limits<double>::infinity();
+  for (Eigen::Index i = 0; i < points.rows(); ++i) {
+    const std::size_t k = static_cast<std::size_t>(i);
+    if (!points.row(i).allFinite() || idx[k] < 0) {
+      out[i] = std::numeric_limits<double>::infinity();
+    } else if (dist2[k] <= reach * reach) {
+      out[i] = std::abs(impl_->normals.row(idx[k]).dot(points.row(i) - impl_->points.row(idx[k])));
+    } else {
+      out[i] = std::sqrt(dist2[k]);
+    }
+  }
   return out;
 }
 
@@ -550,7 +564,7 @@ ScanMatchResult ScanMatcher::match(const Eigen::MatrixXd& scan_sensor, const Eig
   ScanMatchResult fine = surface_->align(scan, start, icp, prior);
   fine.coarse_score = result.coarse_score;
   if (fine.converged) {
-    fine.free_conflict = free_conflict(scan, fine.pose, icp.inlier_distance);
+    fine.free_conflict = free_conflict(scan, fine.pose, icp);
     fine.reason = quality_refusal(fine, icp, coarse_yaw_step);
   }
   if (!fine.reason.empty()) {
@@ -560,10 +574,11 @@ ScanMatchResult ScanMatcher::match(const Eigen::MatrixXd& scan_sensor, const Eig
   return fine;
 }
 
-double ScanMatcher::free_conflict(const Eigen::MatrixXd& scan, const Eigen::Isometry3d& pose, double inlier_distance) const {
+double ScanMatcher::free_conflict(const Eigen::MatrixXd& scan, const Eigen::Isometry3d& pose, const IcpOptions& icp) const {
   if (!map_.supports(BackendFeature::kQuery)) return 0.0;
   const Eigen::MatrixXd world = (scan * pose.linear().transpose()).rowwise() + pose.translation().transpose();
-  const Eigen::VectorXd away = surface_->distances(world);
+  const Eigen::VectorXd away = surface_->distances(world, icp.overlap_distance);
+  const double inlier_distance = icp.inlier_distance;
   std::size_t known = 0, conflicts = 0;
   for (Eigen::Index i = 0; i < world.rows(); ++i) {
     const std::optional<VoxelState> v = map_.query(world.row(i).transpose());

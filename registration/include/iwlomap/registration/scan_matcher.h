@@ -69,9 +69,11 @@ struct MatchQualityOptions {
   /// wrong pose.
   double min_axis_support = 0.7;
   /// Of the scan's points that fall in voxels the map knows, at most this fraction may fall in
-  /// voxels the map holds free (probability < 0.5) farther than inlier_distance from its surface:
-  /// a scan placed where the map has seen through is misplaced. Maps without free space (a voxel
-  /// cloud) do not test this.
+  /// voxels the map holds free (probability < 0.5) and off its surface (not an inlier: farther than
+  /// inlier_distance from the tangent plane of a map point within overlap_distance): a scan placed
+  /// where the map has seen through is misplaced. Ground voxels that grazing rays cleared hold
+  /// points on the ground's plane, which do not count. Maps without free space (a voxel cloud) do
+  /// not test this.
   double max_free_conflict = 0.2;
   /// ICP may move the coarse stage's pose at most this many voxels (and the yaw at most this many
   /// of the coarse stage's yaw steps, at least 1 degree): the coarse optimum and the fine one must
@@ -132,9 +134,9 @@ struct ScanMatchResult {
   double coarse_score = 0.0;   ///< the coarse stage's score (0 when it did not run)
   std::size_t scan_points = 0; ///< points matched after range limit and voxel reduction
   std::size_t pairs = 0;       ///< correspondences at the final pose
-  /// Covariance of the pose correction (tx, ty, tz in metres, then rotations about x, y, z in
-  /// radians, in the map frame): sigma^2 H^-1 from the ICP Hessian; infinite along unobservable
-  /// directions.
+  /// Covariance of the pose correction (tx, ty, tz in metres, then rotations about the map's x, y,
+  /// z axes through the scan's centroid, radians): sigma^2 H^-1 from the ICP Hessian; 1e6 along
+  /// unobservable directions.
   Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Identity();
   /// Unit 6-D directions (columns, same order as the covariance) the scene does not constrain.
   Eigen::Matrix<double, 6, Eigen::Dynamic> unobservable;
@@ -185,8 +187,10 @@ class MapSurface {
                                       const IcpOptions& options = {},
                                       const std::optional<Eigen::Isometry3d>& prior = std::nullopt) const;
 
-  /// Distance (metres) from each row of \p points (N x 3, map frame) to the nearest surface point.
-  [[nodiscard]] Eigen::VectorXd distances(const Eigen::MatrixXd& points) const;
+  /// Distance (metres) from each row of \p points (N x 3, map frame) to the surface: to the tangent
+  /// plane of the nearest surface point when that point lies within \p reach (metres), otherwise to
+  /// the point itself (infinity for a non-finite row).
+  [[nodiscard]] Eigen::VectorXd distances(const Eigen::MatrixXd& points, double reach) const;
 
  private:
   struct Impl;
@@ -218,7 +222,7 @@ class ScanMatcher {
  private:
   // ScanMatchResult::free_conflict of \p scan (sensor frame) at \p pose.
   [[nodiscard]] double free_conflict(const Eigen::MatrixXd& scan, const Eigen::Isometry3d& pose,
-                                     double inlier_distance) const;
+                                     const IcpOptions& icp) const;
   // Whether \p pose lies within edge_margin of the window around \p centre.
   [[nodiscard]] bool at_edge(const Eigen::Isometry3d& pose, const Eigen::Isometry3d& centre, double yaw_step,
                              double resolution) const;
