@@ -15,6 +15,8 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <chrono>
+#include <cstdio>
 #include <future>
 #include <memory>
 #include <stdexcept>
@@ -150,6 +152,37 @@ TEST(BackgroundJob, TerminateWhileAJobRunsFinishesItAndDiscardsTheQueue) {
   job.terminate();  // idempotent
 }
 
+// A stoppable job that runs until it is stopped: terminate() stops it within 100 ms, it leaves no
+// output and no error, and the context holds what the jobs before it left there.
+TEST(BackgroundJob, TerminateStopsAStoppableJobQuicklyLeavingTheContextAsBefore) {
+  std::atomic<bool> started{false};
+  BackgroundJob<int, std::vector<int>, int> job(
+      ExecutionMode::kParallel,
+      [&](int&& x, std::vector<int>& seen, const iwlomap::StopToken& stop) {
+        if (x == 1) {  // the long one
+          started = true;
+          for (;;) {
+            stop.throw_if_stopped();
+            std::this_thread::yield();
+          }
+        }
+        seen.push_back(x);
+        return x;
+      },
+      std::vector<int>{}, 4);
+  job.submit(0);
+  EXPECT_EQ(job.wait(), std::vector<int>{0});
+  job.submit(1);
+  while (!started.load()) std::this_thread::yield();
+  const auto t0 = std::chrono::steady_clock::now();
+  job.terminate();
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  std::printf("terminate() returned after %.3f ms\n", ms);
+  EXPECT_LE(ms, 100.0);
+  EXPECT_TRUE(job.wait().empty());  // the stopped job has no output and no error
+  EXPECT_EQ(job.with_context([](std::vector<int>& seen) { return seen; }), std::vector<int>{0});
+}
+
 TEST(BackgroundJob, DestructionWithQueuedJobsJoinsWithoutRunningThem) {
   auto counter = std::make_shared<std::atomic<int>>(0);
   std::thread opener;
@@ -242,7 +275,9 @@ TEST(BackgroundJob, ThrowsInsteadOfDeadlockWhenAJobWaitsForItsOwnJob) {
 }
 
 TEST(BackgroundJob, RejectsBadConstructionArguments) {
-  EXPECT_THROW((BackgroundJob<int, int, int>(ExecutionMode::kParallel, {})), std::invalid_argument);
+  using Job = BackgroundJob<int, int, int>;
+  EXPECT_THROW((Job(ExecutionMode::kParallel, Job::Work{})), std::invalid_argument);
+  EXPECT_THROW((Job(ExecutionMode::kParallel, Job::StoppableWork{})), std::invalid_argument);
   EXPECT_THROW((BackgroundJob<int, int, int>(ExecutionMode::kParallel, [](int&& x, int&) { return x; }, 0, 0)),
                std::invalid_argument);
 }

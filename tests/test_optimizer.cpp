@@ -29,7 +29,7 @@ struct CountingJob : Optimizer<long, long, long> {
     ++runs;
     started = true;
     while (!release.load()) {
-      if (stop.stop_requested()) throw OptimizationStopped();
+      if (stop.stop_requested()) throw StopRequested();
       std::this_thread::yield();
     }
     return data * 10 + runs;

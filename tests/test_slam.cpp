@@ -1,8 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// The SLAM layer: the pose graph (Ceres) with a true and a false loop closure, trajectory files.
+// The SLAM layer: the pose graph (Ceres) with a true and a false loop closure.
 
 #include "iwlomap/slam/pose_graph.h"
-#include "iwlomap/slam/trajectory_io.h"
 
 #include "iwlomap/optimizer.h"
 
@@ -11,7 +10,6 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
-#include <filesystem>
 #include <vector>
 
 namespace iwlomap::slam {
@@ -77,28 +75,10 @@ TEST(PoseGraph, ALoopClosureRemovesDriftAndAFalseClosureIsRejected) {
   for (std::size_t i = 0; i < truth.size(); ++i) EXPECT_TRUE(again.nodes[i].isApprox(s.nodes[i], 0.0));
 
   std::atomic<bool> stop{true};
-  EXPECT_THROW((void)solve_pose_graph(g, {}, StopToken(&stop)), OptimizationStopped);
+  EXPECT_THROW((void)solve_pose_graph(g, {}, StopToken(&stop)), StopRequested);
   PoseGraph bad = g;
   bad.constraints[0].to = 99;
   EXPECT_THROW((void)solve_pose_graph(bad), std::invalid_argument);
-}
-
-TEST(TrajectoryIo, TumAndKittiFilesRoundTrip) {
-  const std::vector<Eigen::Isometry3d> p = {pose(1, 2, 0.3), pose(-4, 5.5, -1.2)};
-  const auto dir = std::filesystem::temp_directory_path();
-  for (const char* name : {"iwlomap_test_poses.tum", "iwlomap_test_poses.kitti"}) {
-    const std::string path = (dir / name).string();
-    const TrajectoryFormat f = trajectory_format_of(path);
-    write_trajectory(path, p, {}, f);
-    const std::vector<Eigen::Isometry3d> back = read_trajectory(path, f);
-    ASSERT_EQ(back.size(), 2u);
-    for (std::size_t i = 0; i < 2; ++i) EXPECT_TRUE(back[i].isApprox(p[i], 1e-8)) << name;
-    std::filesystem::remove(path);
-  }
-  EXPECT_EQ(trajectory_format_of("a.kitti"), TrajectoryFormat::kKitti);
-  EXPECT_EQ(trajectory_format_of("a.txt"), TrajectoryFormat::kTum);
-  EXPECT_THROW(write_trajectory("/nonexistent-dir/x.tum", p, {}, TrajectoryFormat::kTum), std::runtime_error);
-  EXPECT_THROW(write_trajectory((dir / "x.tum").string(), p, {1.0}, TrajectoryFormat::kTum), std::invalid_argument);
 }
 
 }  // namespace

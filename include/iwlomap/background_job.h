@@ -5,10 +5,13 @@
 /// BackgroundJob: runs work either in the caller's thread (sequential) or on one worker thread
 /// (parallel), with the same results and the same error behaviour in both modes.
 
+#include <iwlomap/stop_token.h>
+
 #include <pthread.h>
 #include <signal.h>
 
 #include <algorithm>
+#include <atomic>
 #include <condition_variable>
 #include <cstddef>
 #include <deque>
@@ -45,7 +48,11 @@ enum class QueueFullPolicy {
 ///
 /// Threads: submit(), wait(), write_map(), terminate(), is_running() and dropped() may be called
 /// from any thread; the context must only be touched through with_context(), which waits first.
-/// The destructor discards queued jobs, lets a running job finish and joins the worker. The worker
+/// The destructor terminates the job (see terminate()) and joins the worker.
+///
+/// Stopping: a work function that takes a StopToken as third argument is asked to stop by
+/// terminate(); it should throw StopRequested (or return) promptly, before it changes the
+/// context, and its job then leaves no output and no error: the context is as before that job. The worker
 /// thread blocks SIGINT and SIGTERM, so an interrupt is delivered to the program's own threads,
 /// never to it. A job must not wait for its own BackgroundJob: wait(), write_map() and
 /// with_context() called from inside a job throw std::logic_error instead of deadlocking.
@@ -53,6 +60,7 @@ template <class Input, class Context, class Output>
 class BackgroundJob {
  public:
   using Work = std::function<Output(Input&&, Context&)>;
+  using StoppableWork = std::function<Output(Input&&, Context&, const StopToken&)>;
 
   /// \param mode run each job in submit() (kSequential) or on a worker thread (kParallel)
   /// \param work the job: turns one input into one output, with the context at hand (not empty)
@@ -60,6 +68,11 @@ class BackgroundJob {
   /// \param capacity queued (not yet started) jobs a parallel job holds, >= 1.
   /// \param policy what submit() does when the queue is full
   BackgroundJob(ExecutionMode mode, Work work, Context context = Context{}, std::size_t capacity = 4,
+                QueueFullPolicy policy = QueueFullPolicy::kBlock)
+      : BackgroundJob(mode, stoppable(std::move(work)), std::move(context), capacity, policy) {}
+
+  /// As above, with a work function that reads the StopToken terminate() sets.
+  BackgroundJob(ExecutionMode mode, StoppableWork work, Context context = Context{}, std::size_t capacity = 4,
                 QueueFullPolicy policy = QueueFullPolicy::kBlock)
       : mode_(mode), work_(std::move(work)), context_(std::move(context)), capacity_(capacity), policy_(policy) {
     if (!work_) throw std::invalid_argument("BackgroundJob: the work function is empty");
@@ -144,9 +157,11 @@ class BackgroundJob {
     idle_.notify_all();
   }
 
-  /// cancel(), then waits for a running job to finish and stops the worker. Finished outputs (and
-  /// a pending exception) stay available to wait(). Idempotent; a no-op in sequential mode.
+  /// cancel(), asks a running job to stop through its StopToken (a stoppable work function; any
+  /// other runs to its end), and joins the worker. Finished outputs (and a pending exception) stay
+  /// available to wait(). Idempotent; a no-op in sequential mode.
   void terminate() {
+    if (mode_ == ExecutionMode::kParallel) stop_.store(true);
     cancel();
     if (worker_.joinable()) worker_.join();
   }
@@ -221,7 +236,9 @@ class BackgroundJob {
       running_on_ = std::this_thread::get_id();
     }
     try {
-      out.push_back(work_(std::move(input), context_));
+      out.push_back(work_(std::move(input), context_, StopToken(&stop_)));
+    } catch (const StopRequested&) {
+      // Stopped by terminate(): no output, no error.
     } catch (...) {
       error = std::current_exception();
     }
@@ -247,8 +264,14 @@ class BackgroundJob {
     return outputs;
   }
 
+  static StoppableWork stoppable(Work work) {
+    if (!work) return {};
+    return [w = std::move(work)](Input&& input, Context& context, const StopToken&) { return w(std::move(input), context); };
+  }
+
   const ExecutionMode mode_;
-  Work work_;
+  StoppableWork work_;
+  std::atomic<bool> stop_{false};
   Context context_;
   const std::size_t capacity_;
   const QueueFullPolicy policy_;

@@ -11,7 +11,7 @@
 /// - init_context(context): once, before the first run; the context is kept between runs (for
 ///   structures worth reusing) and only the running job touches it;
 /// - run(data, context, stop): the computation; it must return promptly (within 100 ms, the bound
-///   the tests check) once stop.stop_requested() turns true, by throwing OptimizationStopped or
+///   the tests check) once stop.stop_requested() turns true, by throwing StopRequested or
 ///   returning anything: a stopped run's output is discarded;
 /// - write_result(output): applies an output, in the caller's thread, from write_map().
 ///
@@ -21,12 +21,13 @@
 /// sequence of calls, both modes apply the same outputs in the same order from write_map(), so
 /// when run() depends only on its input the results are identical.
 ///
-/// terminate() stops a running job through its stop token, discards its output and any queued
-/// request, and returns once the worker has finished: what the caller's state holds is what the
-/// last write_map() wrote. A derived class must call terminate() first in its destructor (the
+/// terminate() stops a running job through its stop token, discards its output, any queued
+/// request and any output not yet applied, and returns once the worker has finished: what the
+/// caller's state holds is what the last write_map() wrote. A derived class must call terminate() first in its destructor (the
 /// worker calls its virtual functions). An exception thrown by run() is rethrown by write_map().
 
 #include <iwlomap/background_job.h>
+#include <iwlomap/stop_token.h>
 
 #include <atomic>
 #include <condition_variable>
@@ -38,21 +39,6 @@
 #include <utility>
 
 namespace iwlomap {
-
-/// Read by a long computation to learn that it should stop.
-class StopToken {
- public:
-  explicit StopToken(const std::atomic<bool>* flag = nullptr) noexcept : flag_(flag) {}
-  [[nodiscard]] bool stop_requested() const noexcept { return flag_ && flag_->load(std::memory_order_relaxed); }
-
- private:
-  const std::atomic<bool>* flag_;
-};
-
-/// Thrown by a computation that saw its stop token (Optimizer discards it silently).
-struct OptimizationStopped : std::runtime_error {
-  OptimizationStopped() : std::runtime_error("iwlomap: the optimization was stopped") {}
-};
 
 template <class GraphData, class Context, class Output>
 class Optimizer {
@@ -97,13 +83,15 @@ class Optimizer {
     return true;
   }
 
-  /// Stops a running job (its output is discarded), drops a queued request and joins the worker.
-  /// Idempotent; optimize() throws afterwards.
+  /// Stops a running job, drops a queued request and an output not yet applied, and joins the
+  /// worker: the caller's state stays what the last write_map() made it. Idempotent; optimize()
+  /// throws afterwards.
   void terminate() {
     {
       std::lock_guard<std::mutex> lock(mutex_);
       terminated_ = true;
       request_.reset();
+      output_.reset();
       stop_.store(true);
     }
     wake_.notify_all();
@@ -154,7 +142,7 @@ class Optimizer {
         context_ready_ = true;
       }
       out.emplace(run(data, context_, StopToken(&stop_)));
-    } catch (const OptimizationStopped&) {
+    } catch (const StopRequested&) {
     } catch (...) {
       error = std::current_exception();
     }

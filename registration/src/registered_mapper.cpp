@@ -23,19 +23,24 @@ RegisteredMapper::RegisteredMapper(std::shared_ptr<IMapperBackend> map, Executio
                                    RegisteredMapperOptions options, std::size_t queue_capacity)
     : job_(mode, &RegisteredMapper::process, State{checked(std::move(map), options), options}, queue_capacity) {}
 
-RegisteredScan RegisteredMapper::process(Scan&& scan, State& state) {
+RegisteredScan RegisteredMapper::process(Scan&& scan, State& state, const StopToken& stop) {
   RegisteredScan out;
   out.given_pose = scan.pose;
   out.initial_guess = state.correction * scan.pose;
   out.integrated_pose = out.initial_guess;
+  Eigen::Isometry3d correction = state.correction;
   if (state.map->get_num_nodes() > 0) {
+    stop.throw_if_stopped();
     out.match = ScanMatcher(*state.map, state.options.matcher).match(scan.points, out.initial_guess);
     if (out.match.converged) {
       out.registered = true;
       out.integrated_pose = out.match.pose;
-      state.correction = out.match.pose * scan.pose.inverse();
+      correction = out.match.pose * scan.pose.inverse();
     }
   }
+  // terminate() during the registration: neither the map nor the correction changes.
+  stop.throw_if_stopped();
+  state.correction = correction;
   // The scan in the map frame, rays from the corrected sensor position.
   const Eigen::MatrixXd world = (scan.points * out.integrated_pose.linear().transpose()).rowwise() +
                                 out.integrated_pose.translation().transpose();

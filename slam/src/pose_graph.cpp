@@ -156,7 +156,7 @@ PoseGraphSolution solve_pose_graph(const PoseGraph& graph, const PoseGraphOption
     solver.callbacks.push_back(&callback);
     ceres::Solver::Summary summary;
     ceres::Solve(solver, &problem, &summary);
-    if (stop.stop_requested()) throw OptimizationStopped();
+    if (stop.stop_requested()) throw StopRequested();
     if (round == 0) out.initial_cost = summary.initial_cost;
     out.final_cost = summary.final_cost;
     out.iterations += static_cast<int>(summary.iterations.size());

@@ -18,7 +18,8 @@ AsyncMapper::AsyncMapper(std::shared_ptr<IMapperBackend> backend, ExecutionMode 
     : backend_(require(std::move(backend))),
       job_(
           mode,
-          [](Scan&& s, std::shared_ptr<IMapperBackend>& map) {
+          [](Scan&& s, std::shared_ptr<IMapperBackend>& map, const StopToken& stop) {
+            stop.throw_if_stopped();  // terminate(): a scan not yet begun stays out of the map
             map->insert_scan(s.origin, s.points, s.intensities, s.max_range);
             return Done{};
           },

@@ -68,7 +68,7 @@ class RegisteredMapper {
     RegisteredMapperOptions options;
     Eigen::Isometry3d correction = Eigen::Isometry3d::Identity();
   };
-  static RegisteredScan process(Scan&& scan, State& state);
+  static RegisteredScan process(Scan&& scan, State& state, const StopToken& stop);
   BackgroundJob<Scan, State, RegisteredScan> job_;
 };
 

@@ -67,7 +67,7 @@ struct PoseGraphSolution {
   double initial_cost = 0.0, final_cost = 0.0;
 };
 
-/// Solves \p graph. Checks \p stop every iteration and throws OptimizationStopped when it is set.
+/// Solves \p graph. Checks \p stop every iteration and throws StopRequested when it is set.
 /// Throws std::invalid_argument for a bad graph or options.
 [[nodiscard]] PoseGraphSolution solve_pose_graph(const PoseGraph& graph, const PoseGraphOptions& options = {},
                                                  const StopToken& stop = StopToken());

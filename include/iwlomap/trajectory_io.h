@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-namespace iwlomap::slam {
+namespace iwlomap {
 
 enum class TrajectoryFormat { kTum, kKitti };
 
@@ -30,4 +30,4 @@ void write_trajectory(const std::string& path, const std::vector<Eigen::Isometry
 [[nodiscard]] std::vector<Eigen::Isometry3d> read_trajectory(const std::string& path, TrajectoryFormat format,
                                                              std::vector<double>* stamps = nullptr);
 
-}  // namespace iwlomap::slam
+}  // namespace iwlomap

@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: BSD-3-Clause
-#include "iwlomap/slam/trajectory_io.h"
+#include "iwlomap/trajectory_io.h"
 
 #include <cerrno>
 #include <cstdio>
@@ -8,7 +8,7 @@
 #include <sstream>
 #include <stdexcept>
 
-namespace iwlomap::slam {
+namespace iwlomap {
 
 TrajectoryFormat trajectory_format_of(const std::string& path) {
   const std::string ext = ".kitti";
@@ -82,4 +82,4 @@ std::vector<Eigen::Isometry3d> read_trajectory(const std::string& path, Trajecto
   return poses;
 }
 
-}  // namespace iwlomap::slam
+}  // namespace iwlomap
