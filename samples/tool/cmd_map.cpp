@@ -12,10 +12,15 @@
 #include <iwlomap/filters/cloud_conversions.h>
 #include <iwlomap/voxel_colors.h>
 
+#include <iwlomap/trajectory_io.h>
+
 #ifdef IWLOMAP_HAVE_REGISTRATION
 #include "registration_options.h"
 
 #include <iwlomap/registration/registered_mapper.h>
+#endif
+#ifdef IWLOMAP_HAVE_SLAM
+#include <iwlomap/slam/pose_graph_mapper.h>
 #endif
 
 #include <chrono>
@@ -57,6 +62,13 @@ output:
   --register                register each file against the map so far before integrating it
                             (initial guess: its VIEWPOINT pose with the last correction; the
                             first file goes in as given); the summary lists the corrections
+  --loop-closure            with --register: register each file against submaps of the files
+                            before it, search older submaps for loop closures, optimize a pose
+                            graph over all files (Ceres), then integrate every file at its
+                            optimized pose; the summary names the closures found and refused
+  --write-poses FILE        the sensor pose each file was integrated at: TUM (t x y z qx qy qz qw;
+                            t = the cloud's stamp in seconds, or its index when it has none), or
+                            KITTI (12 numbers a line) for a FILE ending in .kitti
   --mpi                     run on the ranks of an MPI job (mpirun -np N iwlomap map --mpi ...):
                             file i is read and ray-cast by rank i mod N, each voxel is updated by
                             the rank owning its tile, and the map equals the one-process map;
@@ -82,9 +94,9 @@ output:
 
 int run_map(const std::vector<std::string>& argv) {
   auto value_opts = map_value_options();
-  value_opts.insert({"-o", "--output", "--octomap", "--snapshot"});
+  value_opts.insert({"-o", "--output", "--octomap", "--snapshot", "--write-poses"});
   auto flag_opts = map_flag_options();
-  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async", "--mean-positions", "--no-colors", "--register", "--mpi", "--split-points"});
+  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async", "--mean-positions", "--no-colors", "--register", "--loop-closure", "--mpi", "--split-points"});
 #ifdef IWLOMAP_HAVE_REGISTRATION
   value_opts.merge(registration_value_options());
   flag_opts.merge(registration_flag_options());
@@ -112,6 +124,8 @@ int run_map(const std::vector<std::string>& argv) {
   // Every output is checked before any work and written only when all of them can be.
   OutputFiles files;
   if (output) files.add("-o", *output, {".pcd", ".ply"});
+  const auto poses_out = args.value("--write-poses");
+  if (poses_out) files.add("--write-poses", *poses_out, {".txt", ".tum", ".kitti"});
   const MapOutputs extra = map_outputs_from(args, files);
 
   const MapSetup setup = map_setup_from(args);
@@ -127,10 +141,75 @@ int run_map(const std::vector<std::string>& argv) {
 #ifndef IWLOMAP_HAVE_REGISTRATION
   if (register_scans) throw std::runtime_error("--register: this build has no registration layer (IWLOMAP_WITH_REGISTRATION)");
 #endif
+  const bool loop_closure = args.flag("--loop-closure");
+  if (loop_closure && !register_scans) throw UsageError("--loop-closure needs --register");
+#ifndef IWLOMAP_HAVE_SLAM
+  if (loop_closure)
+    throw std::runtime_error("--loop-closure: this build has no SLAM layer (IWLOMAP_WITH_SLAM, Debian: libceres-dev)");
+#endif
   std::size_t registered_files = 0;
   std::vector<std::string> corrections;
+  std::vector<Eigen::Isometry3d> integrated_poses;  // per file, for --write-poses
+  std::vector<double> stamps;
+  bool all_stamped = true;
   const auto started = std::chrono::steady_clock::now();
   std::size_t points = 0;
+  // With --loop-closure, a first pass finds every file's pose (registration against submaps, loop
+  // closures, the pose graph); the second pass below integrates each file at its pose.
+  std::vector<Eigen::Isometry3d> slam_poses;
+  std::string closure_summary;
+#ifdef IWLOMAP_HAVE_SLAM
+  if (loop_closure) {
+    slam::PoseGraphMapperOptions so;
+    so.resolution = setup.map->get_resolution();
+    so.params = setup.map->get_params();
+    so.max_range = setup.max_range;
+    so.matcher = registration_options_from(args);
+    so.closure_matcher.max_range = so.matcher.max_range;
+    slam::PoseGraphMapper mapper(ExecutionMode::kParallel, so);
+    Progress progress("registering", inputs.size(), !quiet);
+    std::vector<slam::SlamScanReport> reports;
+    std::vector<Eigen::Isometry3d> given;
+    for (std::size_t i = 0; i < inputs.size(); ++i) {
+      const std::string name = std::filesystem::path(inputs[i]).filename().string();
+      progress.update(i, name);
+      const LoadedCloud in = load_cloud(inputs[i], static_cast<float>(setup.params.intensity_max));
+      Eigen::MatrixXd xyz;
+      Eigen::VectorXd intensity;
+      cloud_to_matrices(*in.cloud, nullptr, setup.params.intensity_max, xyz, intensity);
+      Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+      pose.linear() = in.cloud->sensor_orientation_.cast<double>().normalized().toRotationMatrix();
+      pose.translation() = in.cloud->sensor_origin_.head<3>().cast<double>();
+      given.push_back(pose);
+      reports.push_back(mapper.add_scan(pose, (xyz.rowwise() - pose.translation().transpose()) * pose.linear(), intensity));
+      progress.update(i + 1, name);
+    }
+    show_status(!quiet, "optimizing the pose graph");
+    // The poses only: the map is built from the files at these poses below, into the chosen backend.
+    mapper.optimize();
+    (void)mapper.write_map();
+    slam_poses = mapper.poses();
+    const slam::SlamSummary sum = mapper.summary();
+    for (std::size_t i = 0; i < inputs.size(); ++i) {
+      const slam::SlamScanReport& r = reports[i];
+      if (r.registered) ++registered_files;
+      corrections.push_back(std::filesystem::path(inputs[i]).filename().string() + ": " +
+                            (r.registered ? "registered" : i == 0 ? "first scan, as given" : "not registered (" + r.reason + ")") +
+                            ", moved " + metres((slam_poses[i].translation() - given[i].translation()).norm()));
+    }
+    std::size_t accepted = 0;
+    for (const slam::LoopClosure& c : mapper.loop_closures()) accepted += c.rejected ? 0 : 1;
+    closure_summary = "loop closures: " + std::to_string(sum.closure_attempts) + " searched, " +
+                      std::to_string(sum.closures_found) + " found, " + std::to_string(sum.closures_refused_by_matcher) +
+                      " refused by the match-quality model, " + std::to_string(sum.closures_rejected_by_optimizer) +
+                      " rejected by the pose graph, " + std::to_string(accepted) + " kept";
+    for (const slam::LoopClosure& c : mapper.loop_closures())
+      closure_summary += "\n  " + std::filesystem::path(inputs[c.scan]).filename().string() + " to submap " +
+                         std::to_string(c.submap) + " (from " +
+                         std::filesystem::path(inputs[mapper.submap_first_scan(c.submap)]).filename().string() +
+                         "): " + (c.rejected ? "rejected" : "kept");
+  }
+#endif
   {
     Progress progress("mapping", inputs.size(), !quiet);
     IntensityWarning warning("map");
@@ -138,7 +217,7 @@ int run_map(const std::vector<std::string>& argv) {
     if (async) background.emplace(setup.map, ExecutionMode::kParallel, 2);
 #ifdef IWLOMAP_HAVE_REGISTRATION
     std::optional<registration::RegisteredMapper> registered;
-    if (register_scans) {
+    if (register_scans && !loop_closure) {
       registration::RegisteredMapperOptions ro;
       ro.matcher = registration_options_from(args);
       ro.max_range = setup.max_range;
@@ -158,10 +237,23 @@ int run_map(const std::vector<std::string>& argv) {
         warning.check(inputs[i], intensity, setup.params);
       }
       Eigen::Vector3d origin = in.cloud->sensor_origin_.head<3>().cast<double>();
+      Eigen::Isometry3d file_pose = Eigen::Isometry3d::Identity();
+      file_pose.linear() = in.cloud->sensor_orientation_.cast<double>().normalized().toRotationMatrix();
+      file_pose.translation() = origin;
+      const std::uint64_t stamp = in.cloud->header.stamp;  // microseconds, PCL's convention
+      stamps.push_back(stamp ? static_cast<double>(stamp) * 1e-6 : static_cast<double>(i));
+      all_stamped = all_stamped && stamp != 0;
       Eigen::MatrixXd xyz;
       Eigen::VectorXd intensity;
-      if (background || (in.colors && keep_colors) || registered)
+      if (background || (in.colors && keep_colors) || registered || loop_closure)
         cloud_to_matrices(*in.cloud, nullptr, setup.params.intensity_max, xyz, intensity);
+      if (loop_closure) {
+        // From the file's frame (its VIEWPOINT pose) to the pose the pose graph gave it.
+        const Eigen::MatrixXd sensor = (xyz.rowwise() - origin.transpose()) * file_pose.linear();
+        file_pose = slam_poses[i];
+        origin = file_pose.translation();
+        xyz = (sensor * file_pose.linear().transpose()).rowwise() + origin.transpose();
+      }
 #ifdef IWLOMAP_HAVE_REGISTRATION
       if (registered) {
         // The file's points are in the map frame at its VIEWPOINT pose: back to the sensor frame,
@@ -176,9 +268,11 @@ int run_map(const std::vector<std::string>& argv) {
         corrections.push_back(name + ": " + (r.registered ? "registered" : r.match.reason.empty() ? "first scan, as given" : "not registered (" + r.match.reason + ")") +
                               ", moved " + metres((r.integrated_pose.translation() - origin).norm()));
         origin = r.integrated_pose.translation();
+        file_pose = r.integrated_pose;
         xyz = (sensor * r.integrated_pose.linear().transpose()).rowwise() + origin.transpose();
       }
 #endif
+      integrated_poses.push_back(file_pose);
       if (in.colors && keep_colors) {
         // The hits the map counts, so a voxel's colour is that of the points that made it occupied.
         if (!colors) colors.emplace(setup.map->get_resolution());
@@ -190,6 +284,8 @@ int run_map(const std::vector<std::string>& argv) {
       }
       if (background)
         background->integrate(origin, std::move(xyz), std::move(intensity), setup.max_range);
+      else if (loop_closure)
+        setup.map->insert_scan(origin, xyz, intensity, setup.max_range);
       else if (!registered)  // (a registered file went in above)
         integrate_cloud(*setup.map, *in.cloud, nullptr, setup.ray_casting, setup.max_range);
       progress.update(i + 1, name);
@@ -215,6 +311,9 @@ int run_map(const std::vector<std::string>& argv) {
   else if (output)
     save_cloud(files.temporary(*output), occupied, *output);
   write_map_outputs(extra, files, *setup.map, threshold, colors ? &*colors : nullptr);
+  if (poses_out)
+    write_trajectory(files.temporary(*poses_out), integrated_poses, all_stamped ? stamps : std::vector<double>{},
+                     trajectory_format_of(*poses_out));
   files.commit();
   show_status(!quiet, "");
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
@@ -229,6 +328,7 @@ int run_map(const std::vector<std::string>& argv) {
     if (register_scans) {
       std::cout << "registered " << registered_files << " of " << inputs.size() << " file(s)\n";
       for (const std::string& c : corrections) std::cout << "  " << c << "\n";
+      if (loop_closure) std::cout << closure_summary << "\n";
     }
     for (const std::string& written : files.paths()) std::cout << "wrote " << written << "\n";
   }

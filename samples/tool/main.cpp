@@ -65,6 +65,9 @@ int main(int argc, char** argv) {
 #ifdef IWLOMAP_HAVE_REGISTRATION
                 << ", registration"
 #endif
+#ifdef IWLOMAP_HAVE_SLAM
+                << ", slam"
+#endif
 #ifdef IWLOMAP_HAVE_MPI
                 << ", mpi"
 #endif

@@ -245,6 +245,25 @@ check register_no_map 2 "$TOOL" register --scan "$WORK/reg_sensor.pcd"
 check map_register 0 "$TOOL" map "$WORK/scan.pcd" "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --register -o "$WORK/reg_twice.pcd"
 expect map_register_summary grep -q "registered 1 of 2 file(s)" "$WORK/map_register.out"
 check map_register_async 2 "$TOOL" map "$WORK/scan.pcd" --register --async
+check map_loop_closure_needs_register 2 "$TOOL" map "$WORK/scan.pcd" --loop-closure
+check map_write_poses_bad_extension 2 "$TOOL" map "$WORK/scan.pcd" --write-poses "$WORK/poses.csv"
+check map_write_poses 0 "$TOOL" map "$WORK/scan.pcd" "$WORK/scan.pcd" --resolution 0.2 --write-poses "$WORK/plain.kitti"
+expect map_write_poses_kitti awk 'END { exit !(NR == 2 && NF == 12) }' "$WORK/plain.kitti"
+if has_layer slam; then
+  # A small block driven once around (48 scans, 16-beam lidar), the navigation drifting 2 % and
+  # 1 degree per 10 m: every file registers, the loop is closed, and the poses written end far
+  # nearer the truth than the navigation.
+  check generate_street_loop 0 "$TOOL" generate --street-loop "$WORK/loop" --block 70,50 --step 5 --rings 16 \
+    --columns 360 --range 30 --drift 2,1
+  expect generate_street_loop_files bash -c "ls '$WORK'/loop/scan_*.pcd | wc -l | grep -qx 48 && test -s '$WORK/loop/truth.tum'"
+  check map_loop_closure 0 "$TOOL" map "$WORK"/loop/scan_*.pcd --sensor lidar --resolution 0.2 --max-range 30 \
+    --register --loop-closure --write-poses "$WORK/loop_poses.tum" -o "$WORK/loop_map.pcd"
+  expect map_loop_closure_summary grep -Eq "^loop closures: [0-9]+ searched, [1-9][0-9]* found" "$WORK/map_loop_closure.out"
+  expect map_loop_closure_registered grep -Eq "^registered (4[6-8]) of 48 file" "$WORK/map_loop_closure.out"
+  # Position error at the end of the loop (the last pose) against the truth, and the navigation's.
+  expect map_loop_closure_poses bash -c "paste -d' ' '$WORK/loop_poses.tum' '$WORK/loop/truth.tum' '$WORK/loop/navigation.tum' | \
+    awk 'END { e = sqrt((\$2-\$10)^2 + (\$3-\$11)^2); n = sqrt((\$18-\$10)^2 + (\$19-\$11)^2); exit !(NR == 48 && e < 0.2 && n > 3) }'"
+fi
 
 # Any tile size: 10 m at 0.1 m is 12.5 blocks, rounded to 13 (10.4 m), reported by info.
 check map_disk_default_tile 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.1 --sensor lidar --backend disk \
