@@ -20,6 +20,7 @@ __version__: str
 HAS_OCTOMAP: bool
 HAS_VIEWER: bool
 HAS_REGISTRATION: bool
+HAS_SLAM: bool
 MAX_RAY_VOXELS: float
 UNKNOWN_VALUE: int
 
@@ -450,6 +451,18 @@ class IcpOptions:
     min_inlier_fraction: float
     degeneracy_ratio: float
     planar: bool
+    inlier_distance: float
+    overlap_distance: float
+    def __init__(self) -> None: ...
+    def validate(self) -> None: ...
+
+class MatchQualityOptions:
+    min_inlier_fraction: float
+    min_axis_support: float
+    max_free_conflict: float
+    max_coarse_disagreement: float
+    edge_margin: float
+    hold_unconstrained: bool
     def __init__(self) -> None: ...
     def validate(self) -> None: ...
 
@@ -466,6 +479,7 @@ class ScanMatcherOptions:
     mean_hit_positions: bool
     min_probability: float
     icp: IcpOptions
+    quality: MatchQualityOptions
     def __init__(self) -> None: ...
     def validate(self) -> None: ...
 
@@ -481,6 +495,13 @@ class ScanMatchResult:
     pairs: int
     covariance: npt.NDArray[np.float64]
     unobservable: npt.NDArray[np.float64]
+    inlier_fraction: float
+    overlap_fraction: float
+    axis_support: npt.NDArray[np.float64]
+    free_conflict: float
+    icp_shift: float
+    icp_turn: float
+    held_directions: int
 
 class ScanMatcher:
     def __init__(self, map: IMapperBackend, options: ScanMatcherOptions = ...) -> None: ...
@@ -541,3 +562,83 @@ class PcdCloud:
 def read_pcd(path: PathLike) -> PcdCloud: ...
 def write_pcd(path: PathLike, points: Points, intensities: Optional[Values] = None,
               origin: Sequence[float] = (0.0, 0.0, 0.0)) -> None: ...
+
+def write_trajectory(path: PathLike, poses: Sequence[Pose], stamps: Sequence[float] = ..., format: str = "") -> None: ...
+def read_trajectory(path: PathLike, format: str = "") -> Tuple[list[npt.NDArray[np.float64]], list[float]]: ...
+
+class RefusedScanPolicy(enum.Enum):
+    kIntegrateAtPrior = ...
+    kHoldBack = ...
+
+class PoseGraphMapperOptions:
+    resolution: float
+    params: IwloParams
+    max_range: float
+    scans_per_submap: int
+    matcher: ScanMatcherOptions
+    refused: RefusedScanPolicy
+    loop_closure: bool
+    closure_matcher: ScanMatcherOptions
+    closure_stride: int
+    closure_max_distance: float
+    rebuild_map_on_optimize: bool
+    def __init__(self) -> None: ...
+    def validate(self) -> None: ...
+
+class SlamScanReport:
+    index: int
+    registered: bool
+    integrated: bool
+    reason: str
+    held_directions: int
+    submap: int
+    local_pose: npt.NDArray[np.float64]
+    closures: list[int]
+
+class LoopClosure:
+    scan: int
+    submap: int
+    relative: npt.NDArray[np.float64]
+    coarse_score: float
+    inlier_fraction: float
+    external: bool
+    rejected: bool
+
+class SlamSummary:
+    scans: int
+    registered: int
+    refused: int
+    held_back: int
+    submaps: int
+    closure_attempts: int
+    closures_found: int
+    closures_refused_by_matcher: int
+    closures_rejected_by_optimizer: int
+    optimizations: int
+
+class PoseGraphMapper:
+    def __init__(self, mode: ExecutionMode = ..., options: PoseGraphMapperOptions = ...) -> None: ...
+    def add_scan(self, navigation_pose: Pose, points_sensor: Points, intensities: Optional[Values] = None) -> SlamScanReport: ...
+    def add_loop_closure(self, scan: int, submap: int, relative: Pose, information: npt.ArrayLike) -> int: ...
+    def optimize(self) -> None: ...
+    def write_map(self) -> bool: ...
+    def finish(self) -> None: ...
+    def terminate(self) -> None: ...
+    def is_running(self) -> bool: ...
+    def poses(self) -> list[npt.NDArray[np.float64]]: ...
+    def map(self) -> IMapperBackend: ...
+    def build_map(self) -> IMapperBackend: ...
+    def loop_closures(self) -> list[LoopClosure]: ...
+    def summary(self) -> SlamSummary: ...
+    def num_submaps(self) -> int: ...
+    def submap_first_scan(self, submap: int) -> int: ...
+
+class SyntheticWorld:
+    @staticmethod
+    def street_loop(block_x: float = 200.0, block_y: float = 150.0, street_width: float = 14.0, seed: int = 1) -> SyntheticWorld: ...
+    @staticmethod
+    def street_loop_trajectory(block_x: float = 200.0, block_y: float = 150.0, street_width: float = 14.0, seed: int = 1,
+                               step: float = 3.0, sensor_height: float = 1.8) -> list[npt.NDArray[np.float64]]: ...
+    def scan(self, sensor_pose: Pose, rings: int = 32, columns: int = 1024, max_range: float = 40.0,
+             range_noise: float = 0.02, seed: int = 1) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
+    def num_boxes(self) -> int: ...

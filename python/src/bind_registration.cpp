@@ -16,12 +16,6 @@
 
 namespace iwlomap::python {
 
-namespace {
-
-py::array_t<double> pose_to_numpy(const Eigen::Isometry3d& pose) { return to_numpy(Eigen::MatrixXd(pose.matrix())); }
-
-}  // namespace
-
 void bind_registration(py::module_& m) {
   const SearchWindow3D d;
   py::class_<SearchWindow3D>(m, "SearchWindow3D", "The poses searched around an initial pose (metres, radians).")
@@ -92,7 +86,24 @@ void bind_registration(py::module_& m) {
       .def_readwrite("min_inlier_fraction", &r::IcpOptions::min_inlier_fraction)
       .def_readwrite("degeneracy_ratio", &r::IcpOptions::degeneracy_ratio)
       .def_readwrite("planar", &r::IcpOptions::planar, "x, y and yaw only; z, roll, pitch held at the initial pose")
+      .def_readwrite("inlier_distance", &r::IcpOptions::inlier_distance,
+                     "metres: a paired point this close to its map point's tangent plane is an inlier")
+      .def_readwrite("overlap_distance", &r::IcpOptions::overlap_distance,
+                     "metres: a point with a map point this close is in the overlap")
       .def("validate", &r::IcpOptions::validate);
+  py::class_<r::MatchQualityOptions>(m, "MatchQualityOptions",
+                                     "When a registration counts as converged (the match-quality model).")
+      .def(py::init<>())
+      .def_readwrite("min_inlier_fraction", &r::MatchQualityOptions::min_inlier_fraction)
+      .def_readwrite("min_axis_support", &r::MatchQualityOptions::min_axis_support)
+      .def_readwrite("max_free_conflict", &r::MatchQualityOptions::max_free_conflict)
+      .def_readwrite("max_coarse_disagreement", &r::MatchQualityOptions::max_coarse_disagreement,
+                     "voxels (and coarse yaw steps) ICP may move the coarse pose")
+      .def_readwrite("edge_margin", &r::MatchQualityOptions::edge_margin,
+                     "voxels (yaw: steps) from the window's edge that trigger a second coarse search")
+      .def_readwrite("hold_unconstrained", &r::MatchQualityOptions::hold_unconstrained,
+                     "keep unconstrained directions at the initial pose (True) or refuse such scans")
+      .def("validate", &r::MatchQualityOptions::validate);
   py::class_<r::ScanMatcherOptions>(m, "ScanMatcherOptions", "Both stages' settings.")
       .def(py::init<>())
       .def_readwrite("coarse", &r::ScanMatcherOptions::coarse)
@@ -107,6 +118,7 @@ void bind_registration(py::module_& m) {
       .def_readwrite("mean_hit_positions", &r::ScanMatcherOptions::mean_hit_positions)
       .def_readwrite("min_probability", &r::ScanMatcherOptions::min_probability)
       .def_readwrite("icp", &r::ScanMatcherOptions::icp)
+      .def_readwrite("quality", &r::ScanMatcherOptions::quality)
       .def("validate", &r::ScanMatcherOptions::validate);
   py::class_<r::ScanMatchResult>(m, "ScanMatchResult")
       .def_property_readonly("pose", [](const r::ScanMatchResult& x) { return pose_to_numpy(x.pose); },
@@ -120,7 +132,15 @@ void bind_registration(py::module_& m) {
       .def_readonly("scan_points", &r::ScanMatchResult::scan_points)
       .def_readonly("pairs", &r::ScanMatchResult::pairs)
       .def_property_readonly("covariance", [](const r::ScanMatchResult& x) { return to_numpy(Eigen::MatrixXd(x.covariance)); },
-                             "(6, 6): tx, ty, tz (m), rotations about x, y, z (rad), map frame")
+                             "(6, 6): tx, ty, tz (m), rotations about the map's axes through the scan's centroid (rad)")
+      .def_readonly("inlier_fraction", &r::ScanMatchResult::inlier_fraction)
+      .def_readonly("overlap_fraction", &r::ScanMatchResult::overlap_fraction)
+      .def_property_readonly("axis_support", [](const r::ScanMatchResult& x) { return to_numpy(Eigen::VectorXd(x.axis_support)); },
+                             "(3,): per map axis, the share of the overlap facing it that fits")
+      .def_readonly("free_conflict", &r::ScanMatchResult::free_conflict)
+      .def_readonly("icp_shift", &r::ScanMatchResult::icp_shift)
+      .def_readonly("icp_turn", &r::ScanMatchResult::icp_turn)
+      .def_readonly("held_directions", &r::ScanMatchResult::held_directions)
       .def_property_readonly("unobservable", [](const r::ScanMatchResult& x) { return to_numpy(Eigen::MatrixXd(x.unobservable)); },
                              "(6, K): directions the scene does not constrain");
   // The matcher keeps a reference to the map: the Python object keeps the map alive.

@@ -81,6 +81,7 @@ PYBIND11_MODULE(_iwlomap, m) {
   iwlomap::python::bind_async(m);
   iwlomap::python::bind_bench(m);
   iwlomap::python::bind_registration(m);
+  iwlomap::python::bind_slam(m);
 #ifdef IWLOMAP_PYTHON_OCTOMAP
   iwlomap::python::bind_octomap(m);
   m.attr("HAS_OCTOMAP") = true;

@@ -198,4 +198,6 @@ SonarImageView image_view_of(const py::array& a) {
   return v;
 }
 
+py::array_t<double> pose_to_numpy(const Eigen::Isometry3d& pose) { return to_numpy(Eigen::MatrixXd(pose.matrix())); }
+
 }  // namespace iwlomap::python

@@ -56,6 +56,8 @@ py::array_t<double> to_numpy(const Eigen::VectorXd& v);
 py::array_t<double> to_numpy(const Eigen::Vector3d& v);
 /// Colours as an (N, 3) uint8 array.
 py::array_t<std::uint8_t> to_numpy(const ColorMatrix& m);
+/// A pose as a (4, 4) float64 array.
+py::array_t<double> pose_to_numpy(const Eigen::Isometry3d& pose);
 /// Flags as a 1-D bool array.
 py::array_t<bool> to_numpy(const std::vector<bool>& flags);
 
