@@ -60,6 +60,17 @@ namespace {
 
 double translation_of(const Eigen::Isometry3d& p) { return p.translation().norm(); }
 
+// The ICP surface of \p map as \p o would build it (occupied voxels, at their mean hit positions
+// when asked and kept); null when the map has fewer than the 8 points a surface needs.
+std::shared_ptr<const registration::MapSurface> surface_of(IMapperBackend& map, const registration::ScanMatcherOptions& o) {
+  const double threshold = o.min_probability < 0.0 ? map.get_params().occupied_threshold : o.min_probability;
+  const Eigen::MatrixXd v = o.mean_hit_positions && map.get_hit_accumulation()
+                                ? map.get_occupied_mean_positions(threshold)
+                                : map.get_occupied_voxels(threshold);
+  if (v.rows() < 8) return nullptr;
+  return std::make_shared<const registration::MapSurface>(Eigen::MatrixXd(v.leftCols<3>()));
+}
+
 Eigen::Isometry3d tidy(const Eigen::Isometry3d& p) {
   Eigen::Isometry3d out = p;
   out.linear() = Eigen::Quaterniond(p.linear()).normalized().toRotationMatrix();
@@ -181,12 +192,7 @@ SlamScanReport PoseGraphMapper::add_scan(const Eigen::Isometry3d& navigation_pos
     // ICP from the prior first (the navigation's step error is small); the branch and bound only
     // when that is refused. The map's surface is built once for both.
     const Eigen::Isometry3d guess = s.origin.inverse() * prior;
-    const double threshold = options_.matcher.min_probability < 0.0 ? s.map->get_params().occupied_threshold
-                                                                    : options_.matcher.min_probability;
-    const Eigen::MatrixXd v = s.map->get_hit_accumulation() ? s.map->get_occupied_mean_positions(threshold)
-                                                            : s.map->get_occupied_voxels(threshold);
-    if (v.rows() >= 8) {
-      const auto surface = std::make_shared<const registration::MapSurface>(Eigen::MatrixXd(v.leftCols<3>()));
+    if (const auto surface = surface_of(*s.map, options_.matcher)) {
       if (options_.matcher.fine) {
         registration::ScanMatcherOptions icp_only = options_.matcher;
         icp_only.coarse = false;
@@ -283,13 +289,7 @@ SlamScanReport PoseGraphMapper::add_scan(const Eigen::Isometry3d& navigation_pos
       constraints_.push_back(c);
       if (s.inserted >= static_cast<std::size_t>(options_.scans_per_submap)) {
         s.finished = true;
-        if (options_.loop_closure) {
-          const double threshold = options_.closure_matcher.min_probability < 0.0 ? s.map->get_params().occupied_threshold
-                                                                                  : options_.closure_matcher.min_probability;
-          const Eigen::MatrixXd v = s.map->get_hit_accumulation() ? s.map->get_occupied_mean_positions(threshold)
-                                                                  : s.map->get_occupied_voxels(threshold);
-          if (v.rows() >= 8) s.surface = std::make_shared<const registration::MapSurface>(Eigen::MatrixXd(v.leftCols<3>()));
-        }
+        if (options_.loop_closure) s.surface = surface_of(*s.map, options_.closure_matcher);
       }
     }
   }
