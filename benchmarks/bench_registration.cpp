@@ -1,14 +1,15 @@
 // SPDX-License-Identifier: BSD-3-Clause
 // Scan-to-map registration side by side in one run: iwlomap's ScanMatcher (both stages, coarse
 // only, fine only) against PCL's IterativeClosestPoint, GeneralizedIterativeClosestPoint and
-// NormalDistributionsTransform, from the same initial guesses, on the recorded Ouster frames
+// NormalDistributionsTransform (and small_gicp's GICP and VGICP when its source folder is given
+// to CMake as IWLOMAP_SMALL_GICP_DIR), from the same initial guesses, on the recorded Ouster frames
 // (frames 1 and 2 against the map of frame 0; truth = the recorded SLAM poses) and on the
 // synthetic courtyard (truth known). Per method and initial-error level: success rate (within
 // 5 cm and 0.5 degrees of the truth), median time and median error of the successes. Error levels
 // from 0.2 m / 2 deg to 2 m / 20 deg; iwlomap searches its default window (+-1 m, +-10 deg),
 // widened to 1.25 times the level's error beyond 1 m / 10 deg.
 //
-// usage: bench_registration [--trials N] [--data DIR] [--only TEXT]   (TEXT: methods whose name has it)
+// usage: bench_registration [--trials N] [--data DIR] [--only TEXT[,TEXT...]]   (methods whose name has one)
 
 #include <iwlomap/probability_updater.h>
 #include <iwlomap/registration/scan_matcher.h>
@@ -20,6 +21,10 @@
 #include <pcl/registration/gicp.h>
 #include <pcl/registration/icp.h>
 #include <pcl/registration/ndt.h>
+
+#ifdef IWLOMAP_BENCH_WITH_SMALL_GICP
+#include <small_gicp/registration/registration_helper.hpp>
+#endif
 
 #include <algorithm>
 #include <chrono>
@@ -110,6 +115,27 @@ Outcome run_pcl(Reg& reg, const Target& t, const Case& c, const Eigen::Isometry3
   return o;
 }
 
+#ifdef IWLOMAP_BENCH_WITH_SMALL_GICP
+// small_gicp's GICP or VGICP (one thread, as iwlomap's registration runs) against the map's
+// occupied voxels at their mean hit positions, the scan as given (already one point per 0.2 m
+// voxel); each call preprocesses both clouds (covariances, k-d tree), as a user's one-off
+// registration does.
+Outcome run_small_gicp(const Target& t, const Case& c, const Eigen::Isometry3d& initial, bool voxelized) {
+  std::vector<Eigen::Vector3d> target, source;
+  for (const auto& p : *t.cloud) target.emplace_back(p.x, p.y, p.z);
+  for (Eigen::Index i = 0; i < c.scan_sensor.rows(); ++i) source.emplace_back(c.scan_sensor.row(i).transpose());
+  small_gicp::RegistrationSetting setting;
+  setting.type = voxelized ? small_gicp::RegistrationSetting::VGICP : small_gicp::RegistrationSetting::GICP;
+  setting.num_threads = 1;
+  setting.downsampling_resolution = 0.2;
+  setting.voxel_resolution = 1.0;
+  setting.max_correspondence_distance = 1.0;
+  setting.max_iterations = 50;
+  const small_gicp::RegistrationResult r = small_gicp::align(target, source, initial, setting);
+  return {r.converged, r.T_target_source};
+}
+#endif
+
 double median(std::vector<double> v) {
   if (v.empty()) return std::nan("");
   std::sort(v.begin(), v.end());
@@ -127,7 +153,7 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--data") && i + 1 < argc) data = argv[++i];
     else if (!std::strcmp(argv[i], "--only") && i + 1 < argc) only = argv[++i];
     else {
-      std::printf("usage: bench_registration [--trials N] [--data DIR] [--only TEXT]\n");
+      std::printf("usage: bench_registration [--trials N] [--data DIR] [--only TEXT[,TEXT...]]\n");
       return std::strcmp(argv[i], "--help") ? 2 : 0;
     }
   }
@@ -210,6 +236,14 @@ int main(int argc, char** argv) {
          return run_pcl(r, t, c, i);
        }},
   };
+#ifdef IWLOMAP_BENCH_WITH_SMALL_GICP
+  methods.push_back({"small_gicp GICP", [](const Target& t, const Case& c, const Eigen::Isometry3d& i,
+                                           const SearchWindow3D&) { return run_small_gicp(t, c, i, false); }});
+  methods.push_back({"small_gicp VGICP", [](const Target& t, const Case& c, const Eigen::Isometry3d& i,
+                                            const SearchWindow3D&) { return run_small_gicp(t, c, i, true); }});
+#else
+  std::printf("(no small_gicp rows: configure with -DIWLOMAP_SMALL_GICP_DIR=DIR, small_gicp's source folder)\n");
+#endif
   const std::vector<std::pair<double, double>> levels = {{0.2, 2.0}, {0.5, 5.0}, {0.8, 8.0}, {1.0, 10.0},
                                                                 {1.5, 15.0}, {2.0, 20.0}};
   std::printf("scan-to-map registration, %d trial(s) per scene case and error level; success = within 5 cm "
@@ -217,7 +251,14 @@ int main(int argc, char** argv) {
   std::printf("%-22s %-16s %10s %12s %14s %14s\n", "method", "initial error", "success", "median ms",
               "median cm", "median deg");
   for (const auto& [name, method] : methods) {
-    if (name.find(only) == std::string::npos) continue;
+    // --only TEXT[,TEXT...]: methods whose name holds one of them.
+    bool wanted = only.empty();
+    for (std::size_t a = 0; !wanted && a <= only.size();) {
+      const std::size_t b = std::min(only.find(',', a), only.size());
+      wanted = name.find(only.substr(a, b - a)) != std::string::npos;
+      a = b + 1;
+    }
+    if (!wanted) continue;
     for (const auto& [metres, degrees] : levels) {
       std::mt19937 rng(11);
       std::uniform_real_distribution<double> u(-1.0, 1.0);
