@@ -166,4 +166,11 @@ void save_cloud(const std::string& file, const pcl::PointCloud<pcl::PointXYZI>& 
   save_any(file, out, 3 * sizeof(float) + 3, shown_as);
 }
 
+Eigen::Isometry3d viewpoint_pose(const pcl::PointCloud<pcl::PointXYZI>& cloud) {
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+  pose.linear() = cloud.sensor_orientation_.cast<double>().normalized().toRotationMatrix();
+  pose.translation() = cloud.sensor_origin_.head<3>().cast<double>();
+  return pose;
+}
+
 }  // namespace iwlomap::tool

@@ -8,6 +8,8 @@
 
 #include <iwlomap/voxel_colors.h>
 
+#include <Eigen/Geometry>
+
 #include <optional>
 #include <string>
 
@@ -23,6 +25,9 @@ struct LoadedCloud {
 /// VIEWPOINT. A file without an `intensity` field gets \p missing_intensity for every point.
 /// Throws std::runtime_error naming the file when it is missing, unreadable or has no x/y/z.
 [[nodiscard]] LoadedCloud load_cloud(const std::string& path, float missing_intensity);
+
+/// The cloud's sensor pose (sensor to map): its VIEWPOINT's origin and orientation.
+[[nodiscard]] Eigen::Isometry3d viewpoint_pose(const pcl::PointCloud<pcl::PointXYZI>& cloud);
 
 /// Writes a cloud as binary .pcd or .ply by the extension of \p file (an OutputFiles temporary);
 /// throws std::runtime_error naming \p shown_as on failure.

@@ -184,18 +184,7 @@ int run_generate(const std::vector<std::string>& argv) {
   if (opt.rings < 1 || opt.columns < 1) throw UsageError("--rings and --columns must be >= 1");
   const SyntheticScan scan = make_synthetic_scan(opt);
 
-  pcl::PointCloud<pcl::PointXYZI> cloud;
-  cloud.resize(static_cast<std::size_t>(scan.points.rows()));
-  for (Eigen::Index i = 0; i < scan.points.rows(); ++i) {
-    auto& p = cloud[static_cast<std::size_t>(i)];
-    p.x = static_cast<float>(scan.points(i, 0));
-    p.y = static_cast<float>(scan.points(i, 1));
-    p.z = static_cast<float>(scan.points(i, 2));
-    p.intensity = static_cast<float>(scan.intensities[i]);
-  }
-  cloud.width = static_cast<std::uint32_t>(cloud.size());
-  cloud.height = 1;
-  cloud.is_dense = true;
+  pcl::PointCloud<pcl::PointXYZI> cloud = cloud_of(scan.points, scan.intensities);
   cloud.sensor_origin_ = Eigen::Vector4f(static_cast<float>(scan.origin.x()), static_cast<float>(scan.origin.y()),
                                          static_cast<float>(scan.origin.z()), 0.0f);
   save_cloud(files.temporary(*output), cloud, *output);

@@ -177,9 +177,7 @@ int run_map(const std::vector<std::string>& argv) {
       Eigen::MatrixXd xyz;
       Eigen::VectorXd intensity;
       cloud_to_matrices(*in.cloud, nullptr, setup.params.intensity_max, xyz, intensity);
-      Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
-      pose.linear() = in.cloud->sensor_orientation_.cast<double>().normalized().toRotationMatrix();
-      pose.translation() = in.cloud->sensor_origin_.head<3>().cast<double>();
+      const Eigen::Isometry3d pose = viewpoint_pose(*in.cloud);
       given.push_back(pose);
       reports.push_back(mapper.add_scan(pose, (xyz.rowwise() - pose.translation().transpose()) * pose.linear(), intensity));
       progress.update(i + 1, name);
@@ -236,10 +234,8 @@ int run_map(const std::vector<std::string>& argv) {
         for (std::size_t k = 0; k < in.cloud->size(); ++k) intensity[static_cast<Eigen::Index>(k)] = (*in.cloud)[k].intensity;
         warning.check(inputs[i], intensity, setup.params);
       }
-      Eigen::Vector3d origin = in.cloud->sensor_origin_.head<3>().cast<double>();
-      Eigen::Isometry3d file_pose = Eigen::Isometry3d::Identity();
-      file_pose.linear() = in.cloud->sensor_orientation_.cast<double>().normalized().toRotationMatrix();
-      file_pose.translation() = origin;
+      Eigen::Isometry3d file_pose = viewpoint_pose(*in.cloud);
+      Eigen::Vector3d origin = file_pose.translation();
       const std::uint64_t stamp = in.cloud->header.stamp;  // microseconds, PCL's convention
       stamps.push_back(stamp ? static_cast<double>(stamp) * 1e-6 : static_cast<double>(i));
       all_stamped = all_stamped && stamp != 0;
@@ -247,31 +243,26 @@ int run_map(const std::vector<std::string>& argv) {
       Eigen::VectorXd intensity;
       if (background || (in.colors && keep_colors) || registered || loop_closure)
         cloud_to_matrices(*in.cloud, nullptr, setup.params.intensity_max, xyz, intensity);
-      if (loop_closure) {
-        // From the file's frame (its VIEWPOINT pose) to the pose the pose graph gave it.
+      if (loop_closure || registered) {
+        // The file's points are in the map frame at its VIEWPOINT pose: back to the sensor frame,
+        // then to the pose the pose graph gave it, or the registration finds (a registered file
+        // goes into the map here; the colours below use the pose too).
         const Eigen::MatrixXd sensor = (xyz.rowwise() - origin.transpose()) * file_pose.linear();
-        file_pose = slam_poses[i];
+        if (loop_closure) {
+          file_pose = slam_poses[i];
+        } else {
+#ifdef IWLOMAP_HAVE_REGISTRATION
+          registered->integrate(file_pose, sensor, intensity);
+          const registration::RegisteredScan r = registered->sync().front();
+          if (r.registered) ++registered_files;
+          corrections.push_back(name + ": " + (r.registered ? "registered" : r.match.reason.empty() ? "first scan, as given" : "not registered (" + r.match.reason + ")") +
+                                ", moved " + metres((r.integrated_pose.translation() - origin).norm()));
+          file_pose = r.integrated_pose;
+#endif
+        }
         origin = file_pose.translation();
         xyz = (sensor * file_pose.linear().transpose()).rowwise() + origin.transpose();
       }
-#ifdef IWLOMAP_HAVE_REGISTRATION
-      if (registered) {
-        // The file's points are in the map frame at its VIEWPOINT pose: back to the sensor frame,
-        // registered, integrated at the corrected pose (which the colours below then use).
-        Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
-        pose.linear() = in.cloud->sensor_orientation_.cast<double>().normalized().toRotationMatrix();
-        pose.translation() = origin;
-        const Eigen::MatrixXd sensor = (xyz.rowwise() - origin.transpose()) * pose.linear();
-        registered->integrate(pose, sensor, intensity);
-        const registration::RegisteredScan r = registered->sync().front();
-        if (r.registered) ++registered_files;
-        corrections.push_back(name + ": " + (r.registered ? "registered" : r.match.reason.empty() ? "first scan, as given" : "not registered (" + r.match.reason + ")") +
-                              ", moved " + metres((r.integrated_pose.translation() - origin).norm()));
-        origin = r.integrated_pose.translation();
-        file_pose = r.integrated_pose;
-        xyz = (sensor * r.integrated_pose.linear().transpose()).rowwise() + origin.transpose();
-      }
-#endif
       integrated_poses.push_back(file_pose);
       if (in.colors && keep_colors) {
         // The hits the map counts, so a voxel's colour is that of the points that made it occupied.

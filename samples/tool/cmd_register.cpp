@@ -82,8 +82,7 @@ int run_register(const std::vector<std::string>& argv) {
   if (const auto text = args.value("--initial")) {
     initial = pose_from_text("--initial", *text);
   } else {
-    initial.linear() = scan.cloud->sensor_orientation_.cast<double>().normalized().toRotationMatrix();
-    initial.translation() = scan.cloud->sensor_origin_.head<3>().cast<double>();
+    initial = viewpoint_pose(*scan.cloud);
   }
   Eigen::MatrixXd points(static_cast<Eigen::Index>(scan.cloud->size()), 3);
   for (std::size_t i = 0; i < scan.cloud->size(); ++i)
