@@ -119,7 +119,6 @@ int main(int argc, char** argv) {
   without.quality.max_free_conflict = 1.0;
   without.quality.max_coarse_disagreement = 1e9;
   without.quality.edge_margin = 0.0;
-  without.quality.edge_margin = 0.0;
   without.quality.hold_unconstrained = false;
   const SearchWindow3D& w = with_model.window;
   std::printf("window +-%.2f m (x, y), +-%.2f m (z), +-%.1f deg; errors up to twice that, and the identity pose\n",

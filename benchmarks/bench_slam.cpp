@@ -77,14 +77,7 @@ std::pair<double, double> rpe(const std::vector<Eigen::Isometry3d>& p, const std
   return {std::sqrt(st / n), std::sqrt(sr / n)};
 }
 
-struct KeyHash {
-  std::size_t operator()(const VoxelKey& k) const noexcept {
-    return (static_cast<std::size_t>(static_cast<std::uint32_t>(k.x)) * 73856093u) ^
-           (static_cast<std::size_t>(static_cast<std::uint32_t>(k.y)) * 19349663u) ^
-           (static_cast<std::size_t>(static_cast<std::uint32_t>(k.z)) * 83492791u);
-  }
-};
-using KeySet = std::unordered_set<VoxelKey, KeyHash>;
+using KeySet = std::unordered_set<VoxelKey>;  // std::hash<VoxelKey> from voxel_key.h
 
 KeySet keys_of(const Eigen::MatrixXd& pts, double res) {
   KeySet s;

@@ -42,6 +42,15 @@ Eigen::Matrix<double, 6, 6> information_from(const py::handle& obj) {
   return m;
 }
 
+StreetLoopOptions street_of(double block_x, double block_y, double street_width, std::uint32_t seed) {
+  StreetLoopOptions o;
+  o.block_x = block_x;
+  o.block_y = block_y;
+  o.street_width = street_width;
+  o.seed = seed;
+  return o;
+}
+
 TrajectoryFormat format_of(const std::string& path, const std::string& format) {
   if (format.empty()) return trajectory_format_of(path);
   if (format == "tum") return TrajectoryFormat::kTum;
@@ -57,24 +66,15 @@ void bind_slam(py::module_& m) {
       .def_static(
           "street_loop",
           [](double block_x, double block_y, double street_width, std::uint32_t seed) {
-            StreetLoopOptions o;
-            o.block_x = block_x;
-            o.block_y = block_y;
-            o.street_width = street_width;
-            o.seed = seed;
-            return SyntheticWorld::street_loop(o);
+            return SyntheticWorld::street_loop(street_of(block_x, block_y, street_width, seed));
           },
           py::arg("block_x") = 200.0, py::arg("block_y") = 150.0, py::arg("street_width") = 14.0, py::arg("seed") = 1,
           "A city block's street loop (centreline from (0, 0) to (block_x, block_y)), seeded.")
       .def_static(
           "street_loop_trajectory",
           [](double block_x, double block_y, double street_width, std::uint32_t seed, double step, double height) {
-            StreetLoopOptions o;
-            o.block_x = block_x;
-            o.block_y = block_y;
-            o.street_width = street_width;
-            o.seed = seed;
-            return poses_to_list(SyntheticWorld::street_loop_trajectory(o, step, height));
+            return poses_to_list(
+                SyntheticWorld::street_loop_trajectory(street_of(block_x, block_y, street_width, seed), step, height));
           },
           py::arg("block_x") = 200.0, py::arg("block_y") = 150.0, py::arg("street_width") = 14.0, py::arg("seed") = 1,
           py::arg("step") = 3.0, py::arg("sensor_height") = 1.8,

@@ -527,9 +527,9 @@ ScanMatchResult ScanMatcher::match(const Eigen::MatrixXd& scan_sensor, const Eig
     // a pose beyond it: search once more around it, and refuse if that optimum lies on the edge
     // again (edge_margin = 0 turns this off).
     if (m.found && options_.quality.edge_margin > 0.0 &&
-        at_edge(m.pose, initial, m.yaw_step, map_.get_resolution())) {
+        at_edge(m.pose, initial, m.yaw_step)) {
       const CoarseMatch again = search(m.pose);
-      if (again.found && at_edge(again.pose, m.pose, again.yaw_step, map_.get_resolution())) {
+      if (again.found && at_edge(again.pose, m.pose, again.yaw_step)) {
         result.coarse_score = again.score;
         result.reason = "match quality: the coarse optimum lies at the edge of the search window twice in a row; "
                         "the pose lies beyond it (widen the window)";
@@ -589,8 +589,8 @@ double ScanMatcher::free_conflict(const Eigen::MatrixXd& scan, const Eigen::Isom
   return known > 0 ? static_cast<double>(conflicts) / static_cast<double>(known) : 0.0;
 }
 
-bool ScanMatcher::at_edge(const Eigen::Isometry3d& pose, const Eigen::Isometry3d& centre, double yaw_step,
-                          double resolution) const {
+bool ScanMatcher::at_edge(const Eigen::Isometry3d& pose, const Eigen::Isometry3d& centre, double yaw_step) const {
+  const double resolution = map_.get_resolution();
   const double margin = options_.quality.edge_margin;
   const Eigen::Vector3d dt = pose.translation() - centre.translation();
   const Eigen::Matrix3d turn = pose.linear() * centre.linear().transpose();

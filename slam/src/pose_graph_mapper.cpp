@@ -13,12 +13,18 @@ namespace iwlomap::slam {
 
 namespace detail {
 
+// A scan as kept for the map: sensor frame, finite rows only.
+struct SlamScan {
+  Eigen::MatrixXd points;
+  Eigen::VectorXd intensities;
+};
+
 // A snapshot for one optimization: the graph over scans (nodes 0 .. scans - 1) and submaps (nodes
 // scans ..), and the scans for the map rebuild.
 struct SlamGraphData {
   PoseGraph graph;
   std::size_t scans = 0;
-  std::vector<std::shared_ptr<const void>> scan_refs;  // keeps the scans alive (PoseGraphMapper::Scan)
+  std::vector<std::shared_ptr<const SlamScan>> scan_refs;
   std::vector<bool> integrated;
   std::vector<std::size_t> closure_constraint;
   bool rebuild = false;
@@ -32,11 +38,6 @@ struct SlamOutput {
 };
 
 }  // namespace detail
-
-struct PoseGraphMapper::Scan {
-  Eigen::MatrixXd points;  // sensor frame, finite rows only
-  Eigen::VectorXd intensities;
-};
 
 struct PoseGraphMapper::Submap {
   std::unique_ptr<IMapperBackend> map;  // in the submap's frame
@@ -156,7 +157,7 @@ SlamScanReport PoseGraphMapper::add_scan(const Eigen::Isometry3d& navigation_pos
   if (intensities.size() != points_sensor.rows())
     throw std::invalid_argument("iwlomap: PoseGraphMapper: " + std::to_string(intensities.size()) +
                                 " intensities for " + std::to_string(points_sensor.rows()) + " points");
-  auto scan = std::make_shared<Scan>();
+  auto scan = std::make_shared<detail::SlamScan>();
   {
     Eigen::Index n = 0;
     for (Eigen::Index i = 0; i < points_sensor.rows(); ++i) n += points_sensor.row(i).allFinite() ? 1 : 0;
@@ -215,7 +216,6 @@ SlamScanReport PoseGraphMapper::add_scan(const Eigen::Isometry3d& navigation_pos
   } else {
     report.reason = index == 0 ? "" : "no submap to register against";
   }
-  if (index == 0) report.registered = false;
   report.integrated = report.registered || index == 0 || options_.refused == RefusedScanPolicy::kIntegrateAtPrior;
   report.local_pose = local;
 
@@ -403,7 +403,7 @@ std::shared_ptr<const detail::SlamOutput> PoseGraphMapper::run(const std::shared
     for (std::size_t i = 0; i < data->scans; ++i) {
       if (stop.stop_requested()) throw StopRequested();
       if (!data->integrated[i]) continue;
-      insert(*map, *std::static_pointer_cast<const Scan>(data->scan_refs[i]), out->solution.nodes[i]);
+      insert(*map, *data->scan_refs[i], out->solution.nodes[i]);
     }
     out->map = std::move(map);
   }
@@ -413,7 +413,6 @@ std::shared_ptr<const detail::SlamOutput> PoseGraphMapper::run(const std::shared
 void PoseGraphMapper::write_result(const std::shared_ptr<const detail::SlamOutput>& out) {
   const std::size_t n = out->scans;
   optimized_.assign(out->solution.nodes.begin(), out->solution.nodes.begin() + static_cast<std::ptrdiff_t>(n));
-  optimized_submaps_.assign(out->solution.nodes.begin() + static_cast<std::ptrdiff_t>(n), out->solution.nodes.end());
   applied_scans_ = n;
   ++summary_.optimizations;
   summary_.closures_rejected_by_optimizer = 0;

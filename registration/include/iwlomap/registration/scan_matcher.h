@@ -224,8 +224,7 @@ class ScanMatcher {
   [[nodiscard]] double free_conflict(const Eigen::MatrixXd& scan, const Eigen::Isometry3d& pose,
                                      const IcpOptions& icp) const;
   // Whether \p pose lies within edge_margin of the window around \p centre.
-  [[nodiscard]] bool at_edge(const Eigen::Isometry3d& pose, const Eigen::Isometry3d& centre, double yaw_step,
-                             double resolution) const;
+  [[nodiscard]] bool at_edge(const Eigen::Isometry3d& pose, const Eigen::Isometry3d& centre, double yaw_step) const;
   // Why a converged ICP result fails MatchQualityOptions (empty when it passes).
   [[nodiscard]] std::string quality_refusal(const ScanMatchResult& r, const IcpOptions& icp,
                                             double coarse_yaw_step) const;

@@ -117,6 +117,7 @@ struct SlamSummary {
 };
 
 namespace detail {
+struct SlamScan;
 struct SlamGraphData;
 struct SlamContext {};
 struct SlamOutput;
@@ -173,7 +174,7 @@ class PoseGraphMapper : private Optimizer<std::shared_ptr<const detail::SlamGrap
   [[nodiscard]] const PoseGraphMapperOptions& options() const noexcept { return options_; }
 
  private:
-  struct Scan;
+  using Scan = detail::SlamScan;
   struct Submap;
   std::shared_ptr<const detail::SlamGraphData> get_graph_data() override;
   void init_context(detail::SlamContext&) override {}
@@ -200,7 +201,6 @@ class PoseGraphMapper : private Optimizer<std::shared_ptr<const detail::SlamGrap
   std::shared_ptr<IMapperBackend> map_;
   std::size_t applied_scans_ = 0;  // scans covered by the last applied optimization
   bool finishing_ = false;         // finish()'s optimization rebuilds the map
-  std::vector<Eigen::Isometry3d> optimized_submaps_;
   SlamSummary summary_;
 };
 
