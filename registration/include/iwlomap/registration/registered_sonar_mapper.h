@@ -35,8 +35,9 @@ namespace iwlomap::registration {
 struct RegisteredSonarMapperOptions {
   RegisteredSonarMapperOptions();
   /// How a submap is registered. Defaults differ from ScanMatcherOptions' in three ways: the
-  /// match-quality model is off (its thresholds were set on lidar scenes; max_fitness_rmse below
-  /// is this mapper's test), and two more, both
+  /// match-quality model is off and unconstrained directions are refused, not held (the model's
+  /// thresholds were set on lidar scenes; max_fitness_rmse below is this mapper's test), and two
+  /// more, both
   /// measured on the simulated survey of bench_sonar_accuracy (docs/accuracy.md): the coarse
   /// stage is off, because a forward-looking sonar's submap lies mostly beyond the map's frontier
   /// and over a flat seabed the branch and bound scores highest where it pulls the submap back
