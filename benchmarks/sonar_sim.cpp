@@ -217,10 +217,10 @@ SonarNoise heavy_noise() {
 }
 
 SonarSimulation simulate_sonar_survey(const SonarSimOptions& o) {
-  if (o.beams < 1 || o.range_bins < 1 || o.elevation_rays < 1 || !(o.range_resolution > 0.0) ||
+  if (o.beams < 1 || o.legs < 1 || o.range_bins < 1 || o.elevation_rays < 1 || !(o.range_resolution > 0.0) ||
       !(o.ping_spacing > 0.0) || !(o.resolution > 0.0) || !(o.drift >= 0.0) || !std::isfinite(o.tvg_error_db_per_m) ||
       !std::isfinite(o.gain_change_db) || !(o.second_floor_reflectivity <= 1.0))
-    throw std::invalid_argument("sonar simulation: beams, range_bins, elevation_rays, range_resolution, "
+    throw std::invalid_argument("sonar simulation: beams, legs, range_bins, elevation_rays, range_resolution, "
                                 "ping_spacing and resolution must be > 0, drift >= 0, gains finite, "
                                 "second_floor_reflectivity <= 1");
   SonarSimulation sim;
@@ -254,7 +254,8 @@ SonarSimulation simulate_sonar_survey(const SonarSimOptions& o) {
   const SonarNoise& noise = o.noise;
   const double max_range = g.max_range;
   Eigen::MatrixXf echo(o.range_bins, o.beams), ghost(o.range_bins, o.beams);
-  for (int leg = 0; leg < 2; ++leg) {
+  for (int run = 0; run < o.legs; ++run) {
+    const int leg = run % 2;
     const double heading = leg == 0 ? 0.0 : kPi;
     const Eigen::Matrix3d rot = Eigen::AngleAxisd(heading, Eigen::Vector3d::UnitZ()).toRotationMatrix() * level * pitch;
     const double length = o.leg_end_x - o.leg_start_x;

@@ -83,6 +83,9 @@ struct SonarSimOptions {
   double ping_spacing = 0.1;        ///< metres between pings along a leg
   double leg_start_x = -4.0, leg_end_x = 28.0;
   double leg_y[2] = {1.5, -1.5};    ///< the two legs: +x at leg_y[0], back along -x at leg_y[1]
+  /// Legs run in all (>= 1): leg k runs as leg k % 2, so 3 repeats the first leg with its heading
+  /// after the return leg (a survey that revisits its own lines, as loop closure needs).
+  int legs = 2;
   double resolution = 0.1;          ///< voxel edge of the truth sets
   double truth_band = 0.1;          ///< footprint: hits within this of the beam's nearest hit
   double echo_threshold = 35.0;     ///< for the early/late return statistics only
@@ -97,7 +100,7 @@ struct SonarSimOptions {
   /// the image (echoes and noise alike) is off by this many dB per metre from mid-range, brighter
   /// far away for a positive value (a time-varied gain that over-compensates).
   double tvg_error_db_per_m = 0.0;
-  /// A gain change mid-survey: the second leg's images are this many dB brighter.
+  /// A gain change mid-survey: the return legs' images (odd k) are this many dB brighter.
   double gain_change_db = 0.0;
   /// A second seabed type from x = 14 m on, of this reflectivity (sand is 0.45; mud 0.2, say);
   /// negative: the same sand everywhere.
