@@ -68,6 +68,27 @@ KeySet arc_voxels(const Eigen::Isometry3d& pose, double r, double bearing, doubl
   return out;
 }
 
+TEST(SonarImageCopy, CopiesThroughTheViewsStridesIntoRowMajorPixels) {
+  // A column-major Eigen image (bin_stride 1) and a 16-bit one: the copy's row-major view reads
+  // the same pixels, and outlives the source.
+  SonarImage16 image(5, 3);
+  for (int r = 0; r < 5; ++r)
+    for (int b = 0; b < 3; ++b) image(r, b) = static_cast<std::uint16_t>(1000 * r + b);
+  const SonarImageCopy copy = [&] {
+    const SonarImage16 temporary = image;
+    return SonarImageCopy(make_sonar_image_view(temporary));
+  }();
+  const SonarImageView v = copy.view();
+  EXPECT_EQ(v.type, SonarPixelType::kUint16);
+  EXPECT_EQ(v.range_bins, 5);
+  EXPECT_EQ(v.beams, 3);
+  EXPECT_EQ(v.bin_stride, 3);
+  EXPECT_EQ(copy.size_bytes(), 5u * 3u * 2u);
+  for (int r = 0; r < 5; ++r)
+    for (int b = 0; b < 3; ++b) EXPECT_EQ(v.at(r, b), 1000.0 * r + b);
+  EXPECT_THROW(SonarImageCopy(SonarImageView{}), std::invalid_argument);
+}
+
 TEST(SonarImageProjector, SingleEchoGivesOccupiedArcAndFreeVoxelsBeforeIt) {
   const double res = 0.05, aperture = 0.3;
   Ping p = one_beam(100, 0.01, aperture, {{59, 200}});  // echo at r = 0.595 m

@@ -103,6 +103,26 @@ template <typename Derived>
           static_cast<std::ptrdiff_t>(image.rowStride()), static_cast<std::ptrdiff_t>(image.colStride())};
 }
 
+/// An owned copy of a sonar image, row-major (bin_stride = beams): what a mapper keeps of a ping
+/// it integrates later (submaps, re-integration at corrected poses).
+class SonarImageCopy {
+ public:
+  SonarImageCopy() = default;
+  /// Copies \p image through its strides. Throws std::invalid_argument for an empty view.
+  explicit SonarImageCopy(const SonarImageView& image);
+  /// A view of the copy, valid while the copy lives and is not moved.
+  [[nodiscard]] SonarImageView view() const noexcept {
+    return {bytes_.data(), type_, range_bins_, beams_, static_cast<std::ptrdiff_t>(beams_), 1};
+  }
+  /// Bytes held.
+  [[nodiscard]] std::size_t size_bytes() const noexcept { return bytes_.size(); }
+
+ private:
+  SonarPixelType type_ = SonarPixelType::kUint8;
+  int range_bins_ = 0, beams_ = 0;
+  std::vector<std::uint8_t> bytes_;
+};
+
 /// Sonar images as Eigen matrices: rows = range bins, columns = beams.
 using SonarImage8 = Eigen::Matrix<std::uint8_t, Eigen::Dynamic, Eigen::Dynamic>;
 using SonarImage16 = Eigen::Matrix<std::uint16_t, Eigen::Dynamic, Eigen::Dynamic>;

@@ -4,7 +4,6 @@
 #include <iwlomap/probability_updater.h>
 
 #include <cmath>
-#include <cstring>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -12,16 +11,6 @@
 namespace iwlomap::registration {
 
 namespace {
-
-std::size_t pixel_bytes(SonarPixelType type) {
-  switch (type) {
-    case SonarPixelType::kUint8: return 1;
-    case SonarPixelType::kUint16: return 2;
-    case SonarPixelType::kFloat32: return 4;
-    case SonarPixelType::kFloat64: return 8;
-  }
-  return 1;
-}
 
 std::shared_ptr<IMapperBackend> checked(std::shared_ptr<IMapperBackend> map, const SonarImageProjector& projector,
                                         const RegisteredSonarMapperOptions& o) {
@@ -55,10 +44,6 @@ RegisteredSonarMapperOptions::RegisteredSonarMapperOptions() {
   matcher.quality.hold_unconstrained = false;
 }
 
-SonarImageView RegisteredSonarMapper::Ping::view() const {
-  return {bytes.data(), type, range_bins, beams, static_cast<std::ptrdiff_t>(beams), 1};
-}
-
 RegisteredSonarMapper::RegisteredSonarMapper(std::shared_ptr<IMapperBackend> map, SonarImageProjector projector,
                                              ExecutionMode mode, RegisteredSonarMapperOptions options,
                                              std::size_t queue_capacity)
@@ -73,18 +58,7 @@ void RegisteredSonarMapper::integrate(const Eigen::Isometry3d& nav_pose, const S
   if (image.data == nullptr || image.range_bins < 1 || image.beams < 1)
     throw std::invalid_argument("iwlomap: RegisteredSonarMapper: the sonar image is empty");
   geometry.validate(image.beams);
-  Ping ping{nav_pose, geometry, image.type, image.range_bins, image.beams, {}};
-  const std::size_t size = pixel_bytes(image.type);
-  ping.bytes.resize(static_cast<std::size_t>(image.range_bins) * static_cast<std::size_t>(image.beams) * size);
-  // Copied element by element through the view's strides into a row-major buffer.
-  const auto* src = static_cast<const std::uint8_t*>(image.data);
-  std::uint8_t* dst = ping.bytes.data();
-  for (int bin = 0; bin < image.range_bins; ++bin)
-    for (int beam = 0; beam < image.beams; ++beam, dst += size) {
-      const std::ptrdiff_t i = static_cast<std::ptrdiff_t>(bin) * image.bin_stride +
-                               static_cast<std::ptrdiff_t>(beam) * image.beam_stride;
-      std::memcpy(dst, src + i * static_cast<std::ptrdiff_t>(size), size);
-    }
+  Ping ping{nav_pose, geometry, SonarImageCopy(image)};
   if (pending_.pings.empty()) pending_.first_ping = pings_seen_;
   pending_.pings.push_back(std::move(ping));
   ++pings_seen_;
@@ -127,7 +101,7 @@ RegisteredSubmap RegisteredSonarMapper::process(Submap&& submap, State& state) {
     local.set_params(params);
     const Eigen::Isometry3d to_anchor = anchor.inverse();
     for (const Ping& ping : submap.pings) {
-      const SonarObservations obs = state.projector.project(ping.view(), ping.geometry, to_anchor * ping.nav_pose);
+      const SonarObservations obs = state.projector.project(ping.image.view(), ping.geometry, to_anchor * ping.nav_pose);
       local.batch_update_iwlo(obs.points, obs.intensities, obs.is_occupied, obs.weights);
     }
     const Eigen::MatrixXd points = local.get_occupied_voxels(params.occupied_threshold).leftCols(3);
@@ -151,7 +125,7 @@ RegisteredSubmap RegisteredSonarMapper::process(Submap&& submap, State& state) {
   }
   for (const Ping& ping : submap.pings) {
     const Eigen::Isometry3d pose = out.correction * ping.nav_pose;
-    const SonarObservations obs = state.projector.integrate(*state.map, ping.view(), ping.geometry, pose);
+    const SonarObservations obs = state.projector.integrate(*state.map, ping.image.view(), ping.geometry, pose);
     out.observations += obs.size();
     out.beams_with_return += obs.beams_with_return;
     out.beams_without_return += obs.beams_without_return;

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <numeric>
 #include <stdexcept>
 #include <string>
@@ -104,6 +105,28 @@ void SonarProjectorParams::validate() const {
           "iwlomap: invalid sonar projector parameter snr_weight.enabled = true (the SNR weight measures an echo "
           "against the CFAR threshold: it needs detector kCellAveragingCfar or kOrderedStatisticCfar)");
   }
+}
+
+SonarImageCopy::SonarImageCopy(const SonarImageView& image)
+    : type_(image.type), range_bins_(image.range_bins), beams_(image.beams) {
+  if (image.data == nullptr || image.range_bins < 1 || image.beams < 1)
+    throw std::invalid_argument("iwlomap: SonarImageCopy: the sonar image is empty");
+  std::size_t size = 1;
+  switch (image.type) {
+    case SonarPixelType::kUint8: size = 1; break;
+    case SonarPixelType::kUint16: size = 2; break;
+    case SonarPixelType::kFloat32: size = 4; break;
+    case SonarPixelType::kFloat64: size = 8; break;
+  }
+  bytes_.resize(static_cast<std::size_t>(range_bins_) * static_cast<std::size_t>(beams_) * size);
+  const auto* src = static_cast<const std::uint8_t*>(image.data);
+  std::uint8_t* dst = bytes_.data();
+  for (int bin = 0; bin < range_bins_; ++bin)
+    for (int beam = 0; beam < beams_; ++beam, dst += size) {
+      const std::ptrdiff_t i = static_cast<std::ptrdiff_t>(bin) * image.bin_stride +
+                               static_cast<std::ptrdiff_t>(beam) * image.beam_stride;
+      std::memcpy(dst, src + i * static_cast<std::ptrdiff_t>(size), size);
+    }
 }
 
 SonarImageProjector::SonarImageProjector(double resolution, const SonarProjectorParams& params)

@@ -106,10 +106,7 @@ class RegisteredSonarMapper {
   struct Ping {
     Eigen::Isometry3d nav_pose;
     SonarGeometry geometry;
-    SonarPixelType type = SonarPixelType::kUint8;
-    int range_bins = 0, beams = 0;
-    std::vector<std::uint8_t> bytes;  // row-major range_bins x beams of `type`
-    [[nodiscard]] SonarImageView view() const;
+    SonarImageCopy image;
   };
   struct Submap {
     std::size_t first_ping = 0;
