@@ -65,10 +65,16 @@
 //             Variants of the registration: --coarse (branch and bound before ICP), --six-dof
 //             (ICP in 6 DoF instead of x, y, yaw), --no-rmse-limit (accept any converged fit);
 //             --submaps prints each submap's registration to standard error.
+// --loop-closure (with --drift F): the survey revisits its first line: --legs N legs (default 3:
+//             out, back, and out again on the first leg's line and heading), mapped at the true
+//             poses, at the drifted navigation poses, and by SonarPoseGraphMapper (submaps of
+//             --submap-pings pings matched against older submaps of the same place and heading,
+//             a pose graph over the submaps), with no prior map. Needs the SLAM layer.
 //
 // Usage: bench_sonar_accuracy [--resolution R] [--ping-spacing S] [--band M] [--seed N] [--quick]
 //                             [--scene objects|pilings] [--gain-errors] [--ablation] [--dump PREFIX]
-//                             [--drift F [--submap-pings K] [--coarse] [--six-dof] [--no-rmse-limit] [--submaps]]
+//                             [--drift F [--submap-pings K] [--coarse] [--six-dof] [--no-rmse-limit] [--submaps]
+//                              [--loop-closure [--legs N]]]
 
 #include "sonar_sim.h"
 
@@ -77,6 +83,9 @@
 #include <iwlomap/sonar_preset.h>
 #ifdef IWLOMAP_BENCH_REGISTRATION
 #include <iwlomap/registration/registered_sonar_mapper.h>
+#endif
+#ifdef IWLOMAP_BENCH_SLAM
+#include <iwlomap/slam/sonar_pose_graph_mapper.h>
 #endif
 
 #include <algorithm>
@@ -294,6 +303,8 @@ struct Options {
   double drift = -1.0;    // < 0: no drift comparison
   int submap_pings = 80;
   bool coarse = false, six_dof = false, no_rmse_limit = false, submaps = false;  // --drift variants
+  bool loop_closure = false;
+  int legs = 3;  // with --loop-closure
   iwlomap::bench::SonarScene scene = iwlomap::bench::SonarScene::kObjects;
   bool gain_errors = false;
   std::string dump;  // prefix of x y z text files of the truth and of every method's voxels
@@ -304,7 +315,7 @@ struct Options {
                "bench_sonar_accuracy: %s\nusage: bench_sonar_accuracy [--resolution R] [--ping-spacing S] "
                "[--band M] [--seed N] [--quick]\n    [--scene objects|pilings] [--gain-errors] [--ablation] "
                "[--dump PREFIX] [--drift F [--submap-pings K] [--coarse] [--six-dof] [--no-rmse-limit] "
-               "[--submaps]]\n",
+               "[--submaps] [--loop-closure [--legs N]]]\n",
                problem.c_str());
   std::exit(2);
 }
@@ -332,6 +343,8 @@ Options parse(int argc, char** argv) {
     else if (a == "--six-dof") o.six_dof = true;
     else if (a == "--no-rmse-limit") o.no_rmse_limit = true;
     else if (a == "--submaps") o.submaps = true;
+    else if (a == "--loop-closure") o.loop_closure = true;
+    else if (a == "--legs") o.legs = static_cast<int>(value());
     else if (a == "--gain-errors") o.gain_errors = true;
     else if (a == "--scene") {
       if (i + 1 >= argc) usage("--scene needs objects or pilings");
@@ -348,6 +361,8 @@ Options parse(int argc, char** argv) {
   if (!(o.resolution > 0.0) || !(o.ping_spacing > 0.0) || !(o.band >= 0.0) || o.submap_pings < 1)
     usage("values must be > 0 (band >= 0)");
   if (o.drift >= 0.0 && o.ablation) usage("--drift and --ablation are separate runs");
+  if (o.loop_closure && o.drift < 0.0) usage("--loop-closure needs --drift");
+  if (o.legs < 1) usage("--legs must be >= 1");
   return o;
 }
 
@@ -711,6 +726,112 @@ int run_drift(const Options& opt, const iwlomap::SonarImageProjector& projector,
 }
 #endif
 
+#ifdef IWLOMAP_BENCH_SLAM
+// A survey that revisits its first line, with drift and no prior map: mapped at the true poses, at
+// the navigation poses, and by SonarPoseGraphMapper; the share of the F1 lost to drift that the
+// loop closures win back.
+int run_loop_closure(const Options& opt, const iwlomap::SonarImageProjector& projector,
+                     const std::vector<double>& probability_sweep) {
+  using namespace iwlomap;
+  IwloParams iwlo;
+  iwlo.intensity_threshold = kEchoThreshold;
+  std::vector<std::string> rows[2], notes;
+  for (const bench::SonarNoise& noise : {bench::light_noise(), bench::heavy_noise()}) {
+    bench::SonarSimOptions so = sim_options(opt, noise);
+    so.drift = opt.drift;
+    so.legs = opt.legs;
+    const bench::SonarSimulation sim = bench::simulate_sonar_survey(so);
+    ProbabilityUpdater truth_map(opt.resolution), drifted_map(opt.resolution);
+    truth_map.set_params(iwlo);
+    drifted_map.set_params(iwlo);
+    auto closed_map = std::make_shared<ProbabilityUpdater>(opt.resolution);
+    closed_map->set_params(iwlo);
+    slam::SonarPoseGraphMapperOptions lo;
+    lo.pings_per_submap = opt.submap_pings;
+    if (opt.no_rmse_limit) lo.max_fitness_rmse = 0.0;
+    slam::SonarPoseGraphMapper mapper(closed_map, projector, lo);
+    ErrorStats nav_error, closed_error;
+    double seconds = 0.0;
+    for (const bench::SimulatedPing& ping : sim.pings) {
+      const SonarImageView view = make_sonar_image_view(ping.image);
+      static_cast<void>(projector.integrate(truth_map, view, sim.geometry, ping.pose));
+      static_cast<void>(projector.integrate(drifted_map, view, sim.geometry, ping.nav_pose));
+      const auto t0 = std::chrono::steady_clock::now();
+      mapper.integrate(ping.nav_pose, view, sim.geometry);
+      seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      nav_error.add(pose_error(ping.pose, ping.nav_pose));
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    mapper.finish();
+    seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const std::vector<Eigen::Isometry3d> poses = mapper.poses();
+    for (std::size_t i = 0; i < poses.size(); ++i) closed_error.add(pose_error(sim.pings[i].pose, poses[i]));
+    if (opt.submaps) {
+      for (std::size_t k = 0; k < mapper.submaps().size(); ++k) {
+        const slam::SonarSubmapReport& r = mapper.submaps()[k];
+        const auto e = pose_error(sim.pings[r.first_ping].pose, poses[r.first_ping]);
+        std::fprintf(stderr, "%s submap %zu at ping %zu (%zu pings, %zu voxels): %zu of %zu closures; now %.3f m / %.2f deg off\n",
+                     noise.name.c_str(), k, r.first_ping, r.pings, r.occupied_voxels, r.closures, r.closure_attempts,
+                     e.first, e.second);
+        for (const std::string& why : r.refusals) std::fprintf(stderr, "    refused against %s\n", why.c_str());
+      }
+      for (const slam::SonarLoopClosure& c : mapper.loop_closures()) {
+        // The closure's error: its relative pose against the true one. A submap's frame is its
+        // first ping's navigation pose, gravity-aligned (position and heading); where that frame
+        // truly lies: true pose * navigation pose^-1 * frame.
+        const auto true_frame = [&](std::size_t submap) {
+          const bench::SimulatedPing& p = sim.pings[mapper.submaps()[submap].first_ping];
+          Eigen::Isometry3d frame = Eigen::Isometry3d::Identity();
+          frame.translation() = p.nav_pose.translation();
+          frame.linear() = Eigen::AngleAxisd(std::atan2(p.nav_pose.linear()(1, 0), p.nav_pose.linear()(0, 0)),
+                                             Eigen::Vector3d::UnitZ()).toRotationMatrix();
+          return p.pose * p.nav_pose.inverse() * frame;
+        };
+        const Eigen::Isometry3d truth = true_frame(c.target).inverse() * true_frame(c.submap);
+        const auto e = pose_error(truth, c.relative);
+        std::fprintf(stderr, "%s closure %zu -> %zu: rmse %.3f m, off by %.3f m / %.2f deg%s\n", noise.name.c_str(),
+                     c.target, c.submap, c.fitness_rmse, e.first, e.second, c.rejected ? " (rejected)" : "");
+      }
+    }
+
+    const auto corridor = [&](const VoxelKey& k) { return in_corridor(k, so, opt.resolution); };
+    const KeySet truth_inside = restrict_to(sim.footprint_truth, corridor);
+    const KeySet visible_inside = restrict_to(sim.visible_truth, corridor);
+    const std::pair<const char*, const IMapperBackend*> maps[] = {
+        {"true poses", &truth_map}, {"drifted navigation", &drifted_map}, {"drifted, loop closure", closed_map.get()}};
+    double f1s[2][3] = {};
+    for (int m = 0; m < 3; ++m) {
+      const ScoredVoxels voxels = probabilities(*maps[m].second);
+      for (int region = 0; region < 2; ++region) {
+        const Score s = region == 0 ? score(voxels, iwlo.occupied_threshold, probability_sweep, sim.footprint_truth,
+                                            sim.visible_truth, opt.resolution)
+                                    : score(restrict_to(voxels, corridor), iwlo.occupied_threshold, probability_sweep,
+                                            truth_inside, visible_inside, opt.resolution);
+        f1s[region][m] = s.f1;
+        rows[region].push_back(score_row(noise.name, std::string("IWLO (defaults), ") + maps[m].first, s));
+      }
+    }
+    const auto recovered = [&](int region) {
+      const double lost = f1s[region][0] - f1s[region][1];
+      return lost > 0.0 ? 100.0 * (f1s[region][2] - f1s[region][1]) / lost : 0.0;
+    };
+    const slam::SonarSlamSummary sum = mapper.summary();
+    char line[1024];
+    std::snprintf(line, sizeof line,
+                  "%s noise: %zu pings in %d legs; navigation error %s, final %.3f m. Loop closure: %zu submaps, %zu "
+                  "of %zu closures accepted (%zu rejected by the optimizer), pose error %s, recovering %.0f %% (all "
+                  "voxels) and %.0f %% (corridor) of the F1 lost to drift, %.1f s",
+                  noise.name.c_str(), sim.pings.size(), so.legs, nav_error.text().c_str(),
+                  (sim.pings.back().pose.translation() - sim.pings.back().nav_pose.translation()).norm(), sum.submaps,
+                  sum.closures_found, sum.closure_attempts, sum.closures_rejected_by_optimizer,
+                  closed_error.text().c_str(), recovered(0), recovered(1), seconds);
+    notes.emplace_back(line);
+  }
+  print_tables(rows, notes, "map");
+  return 0;
+}
+#endif
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -732,6 +853,13 @@ int main(int argc, char** argv) {
 #ifdef IWLOMAP_BENCH_REGISTRATION
     std::printf("Navigation drift %.3f of the distance travelled, registration with submaps of %d pings\n\n", opt.drift,
                 opt.submap_pings);
+    if (opt.loop_closure) {
+#ifdef IWLOMAP_BENCH_SLAM
+      return run_loop_closure(opt, projector, probability_sweep);
+#else
+      usage("--loop-closure needs the SLAM layer (IWLOMAP_WITH_SLAM)");
+#endif
+    }
     return run_drift(opt, projector, probability_sweep);
 #else
     usage("--drift needs the registration layer (IWLOMAP_WITH_REGISTRATION)");
