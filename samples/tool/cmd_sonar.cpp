@@ -17,6 +17,9 @@
 #ifdef IWLOMAP_HAVE_REGISTRATION
 #include <iwlomap/registration/registered_sonar_mapper.h>
 #endif
+#ifdef IWLOMAP_HAVE_SLAM
+#include <iwlomap/slam/sonar_pose_graph_mapper.h>
+#endif
 
 #include <Eigen/Geometry>
 
@@ -92,6 +95,15 @@ registration (corrects drifting navigation poses against the map):
                             with --backend disk --tiles DIR. Against the map a survey builds
                             itself it rarely finds a fit it can trust (docs/accuracy.md), and
                             then keeps the poses as given.
+  --loop-closure            with --register, for a survey that revisits its own lines (a leg
+                            run again with the same heading): no registration against the map
+                            so far; instead each submap (also cut where the heading turns by
+                            more than 30 degrees) is matched against the older pings of the same
+                            seabed (branch and bound in +-2 m and +-5 degrees, then ICP), the
+                            matches found join a pose graph over the submaps with the
+                            navigation's motion (solved with Ceres, a robust loss for the
+                            matches), and every ping is then mapped at its corrected pose
+                            (docs/slam.md). The map given (--tiles) is continued, not matched.
   --submap-pings K          pings per submap (default 80; aim at about 8 m of travel)
   --write-poses FILE.txt    the pose each ping was integrated at, one per line, as
                             x y z qw qx qy qz (a --poses format)
@@ -156,7 +168,7 @@ int run_sonar(const std::vector<std::string>& argv) {
                      "--false-alarm-rate"});
   auto flag_opts = map_flag_options();
   flag_opts.erase("--no-rays");
-  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--register", "--sonar-preset"});
+  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--register", "--loop-closure", "--sonar-preset"});
   const Args args(argv, value_opts, flag_opts);
   if (args.flag("-h") || args.flag("--help")) {
     std::cout << kHelp << map_outputs_help() << map_options_help(/*rays=*/false);
@@ -178,6 +190,12 @@ int run_sonar(const std::vector<std::string>& argv) {
   if (args.value("--submap-pings") && !register_pings) throw UsageError("--submap-pings needs --register");
 #ifndef IWLOMAP_HAVE_REGISTRATION
   if (register_pings) throw std::runtime_error("--register: this build has no registration layer (IWLOMAP_WITH_REGISTRATION)");
+#endif
+  const bool loop_closure = args.flag("--loop-closure");
+  if (loop_closure && !register_pings) throw UsageError("--loop-closure needs --register");
+#ifndef IWLOMAP_HAVE_SLAM
+  if (loop_closure)
+    throw std::runtime_error("--loop-closure: this build has no SLAM layer (IWLOMAP_WITH_SLAM, Debian: libceres-dev)");
 #endif
 
   const bool use_preset = args.flag("--sonar-preset");
@@ -241,11 +259,19 @@ int run_sonar(const std::vector<std::string>& argv) {
   std::size_t observations = 0, with_return = 0, beams = 0;
   std::vector<Eigen::Isometry3d> integrated = poses;  // where each ping went into the map
   std::string registration_summary;
+#ifdef IWLOMAP_HAVE_SLAM
+  std::optional<slam::SonarPoseGraphMapper> closing;
+  if (loop_closure) {
+    slam::SonarPoseGraphMapperOptions so;
+    so.pings_per_submap = static_cast<int>(std::min<long>(submap_pings, 1L << 30));
+    closing.emplace(setup.map, *projector, so);
+  }
+#endif
   {
-    Progress progress("mapping", pings.size(), !quiet);
+    Progress progress(loop_closure ? "matching submaps" : "mapping", pings.size(), !quiet);
 #ifdef IWLOMAP_HAVE_REGISTRATION
     std::optional<registration::RegisteredSonarMapper> registered;
-    if (register_pings) {
+    if (register_pings && !loop_closure) {
       registration::RegisteredSonarMapperOptions ro;
       ro.pings_per_submap = static_cast<int>(std::min<long>(submap_pings, 1L << 30));
       registered.emplace(setup.map, *projector, ExecutionMode::kSequential, ro);
@@ -255,6 +281,13 @@ int run_sonar(const std::vector<std::string>& argv) {
       const OculusPing& ping = pings[i];
       SonarGeometry geometry = ping.geometry(aperture_deg * kPi / 180.0, min_range);
       if (max_range) geometry.max_range = *max_range;
+#ifdef IWLOMAP_HAVE_SLAM
+      if (closing) {
+        closing->integrate(poses[i], ping.image_view(), geometry);
+        progress.update(i + 1, "ping " + std::to_string(ping.ping_id));
+        continue;
+      }
+#endif
 #ifdef IWLOMAP_HAVE_REGISTRATION
       if (registered) {
         registered->integrate(poses[i], ping.image_view(), geometry);
@@ -284,6 +317,23 @@ int run_sonar(const std::vector<std::string>& argv) {
     }
 #endif
   }
+#ifdef IWLOMAP_HAVE_SLAM
+  if (closing) {
+    {
+      Progress integrating("mapping at the corrected poses", pings.size(), !quiet);
+      closing->finish([&](std::size_t done, std::size_t) { integrating.update(done); });
+    }
+    integrated = closing->poses();
+    const slam::SonarSlamSummary sum = closing->summary();
+    observations = sum.observations;
+    with_return = sum.beams_with_return;
+    beams = sum.beams_with_return + sum.beams_without_return;
+    registration_summary = "loop closure: " + std::to_string(sum.submaps) + " submap(s), " +
+                           std::to_string(sum.closures_found) + " closure(s) found, " +
+                           std::to_string(sum.closures_refused) + " refused by the matcher, " +
+                           std::to_string(sum.closures_rejected_by_optimizer) + " rejected by the optimizer";
+  }
+#endif
   if (poses_out) {
     files.write(*poses_out, [&](const std::string& file) {
       std::ofstream out(file);

@@ -5,6 +5,9 @@
 //   earlier.raw, earlier_truth.txt            a first survey and its true poses
 //   survey.raw, survey_truth.txt, survey_nav.txt   a second survey (other noise), its true poses
 //                                                  and its navigation's, drifting 1 % of the distance
+//   loop.raw, loop_truth.txt, loop_nav.txt         a survey that runs its first line again after
+//                                                  the return leg (three legs, a ping every 0.2 m),
+//                                                  drifting 1 %: for --loop-closure
 // Poses: one per line, x y z qw qx qy qz (sonar frame to map frame).
 
 #include "sonar_sim.h"
@@ -86,11 +89,12 @@ void write_poses(const fs::path& path, const SonarSimulation& sim, bool nav) {
   if (!out) throw std::runtime_error("cannot write " + path.string());
 }
 
-SonarSimulation simulate(std::uint32_t seed, double drift) {
+SonarSimulation simulate(std::uint32_t seed, double drift, int legs = 2, double spacing = 0.4) {
   iwlomap::bench::SonarSimOptions o;
   o.beams = 64;
   o.elevation_rays = 96;
-  o.ping_spacing = 0.4;
+  o.ping_spacing = spacing;
+  o.legs = legs;
   o.noise = iwlomap::bench::light_noise();
   o.drift = drift;
   o.seed = seed;
@@ -114,6 +118,10 @@ int main(int argc, char** argv) {
     write_pings(dir / "survey.raw", survey);
     write_poses(dir / "survey_truth.txt", survey, false);
     write_poses(dir / "survey_nav.txt", survey, true);
+    const SonarSimulation loop = simulate(1, 0.01, 3, 0.2);
+    write_pings(dir / "loop.raw", loop);
+    write_poses(dir / "loop_truth.txt", loop, false);
+    write_poses(dir / "loop_nav.txt", loop, true);
   } catch (const std::exception& e) {
     std::cerr << "make_sonar_survey: " << e.what() << "\n";
     return 1;

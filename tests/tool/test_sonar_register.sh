@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: BSD-3-Clause
-# `iwlomap sonar --register` (and `--detector`, `--sonar-preset`) end to end: a first simulated survey is mapped at its true poses into
-# a Disk map; a second survey of the same site, whose navigation drifts 1 % of the distance, is
-# registered against that map. The poses it writes must end much closer to the truth than the
-# navigation's.
+# `iwlomap sonar --register` (and `--loop-closure`, `--detector`, `--sonar-preset`) end to end: a
+# first simulated survey is mapped at its true poses into a Disk map; a second survey of the same
+# site, whose navigation drifts 1 % of the distance, is registered against that map. The poses it
+# writes must end much closer to the truth than the navigation's. Then a survey that runs its
+# first line again is mapped with --loop-closure and no prior map.
 # usage: test_sonar_register.sh IWLOMAP_BINARY MAKE_SONAR_SURVEY_BINARY WORK_DIR
 set -eu
 TOOL=$1
@@ -17,9 +18,9 @@ rm -rf "$WORK" && mkdir -p "$WORK"
   --backend disk --tiles "$WORK/chart" --register --submap-pings 20 --write-poses "$WORK/registered.txt" \
   -o "$WORK/survey.pcd" | tee "$WORK/register.out"
 grep -q "registered [0-9]* of 9 submap(s)" "$WORK/register.out"
-# Mean position error of the poses of file $1 against the truth.
+# Mean position error of the poses of file $1 against the truth (file $2, default the survey's).
 mean_error() {
-  paste -d' ' <(grep -v '^#' "$1") "$WORK/survey_truth.txt" |
+  paste -d' ' <(grep -v '^#' "$1") "${2:-$WORK/survey_truth.txt}" |
     awk '{ e += sqrt(($1 - $8) ^ 2 + ($2 - $9) ^ 2 + ($3 - $10) ^ 2); n++ } END { printf "%.4f\n", e / n }'
 }
 nav=$(mean_error "$WORK/survey_nav.txt")
@@ -31,6 +32,20 @@ awk -v n="$nav" -v r="$registered" 'BEGIN { exit !(n > 0.3 && r < 0.25 * n) }'
 "$TOOL" sonar "$WORK/survey.raw" --poses "$WORK/survey_nav.txt" --resolution 0.1 --write-poses "$WORK/as_given.txt" \
   -o "$WORK/as_given.pcd" -q
 awk -v n="$nav" -v g="$(mean_error "$WORK/as_given.txt")" 'BEGIN { d = n - g; exit !(d < 1e-6 && d > -1e-6) }'
+# --loop-closure: a survey that runs its first line again, no prior map. The poses written must
+# end much closer to the truth than the navigation's, and the summary names the closures.
+"$TOOL" sonar "$WORK/loop.raw" --poses "$WORK/loop_nav.txt" --resolution 0.1 --intensity-threshold 35 \
+  --register --loop-closure --submap-pings 40 --write-poses "$WORK/loop_closed.txt" -o "$WORK/loop.pcd" |
+  tee "$WORK/loop.out"
+grep -q "loop closure: [0-9]* submap(s), [1-9][0-9]* closure(s) found" "$WORK/loop.out"
+loop_nav=$(mean_error "$WORK/loop_nav.txt" "$WORK/loop_truth.txt")
+loop_closed=$(mean_error "$WORK/loop_closed.txt" "$WORK/loop_truth.txt")
+echo "loop survey, mean position error: navigation $loop_nav m, loop closure $loop_closed m"
+test "$(wc -l < "$WORK/loop_truth.txt")" = "$(grep -vc '^#' "$WORK/loop_closed.txt")"
+awk -v n="$loop_nav" -v r="$loop_closed" 'BEGIN { exit !(n > 0.3 && r < 0.5 * n) }'
+test -s "$WORK/loop.pcd"
+if "$TOOL" sonar "$WORK/loop.raw" -o "$WORK/x.pcd" --loop-closure 2> "$WORK/bad.err"; then exit 1; fi
+grep -q "loop-closure needs --register" "$WORK/bad.err"
 # Bad values.
 if "$TOOL" sonar "$WORK/survey.raw" -o "$WORK/x.pcd" --register --submap-pings 0 2> "$WORK/bad.err"; then exit 1; fi
 grep -q "submap-pings must be >= 1" "$WORK/bad.err"
