@@ -633,6 +633,54 @@ class PoseGraphMapper:
     def num_submaps(self) -> int: ...
     def submap_first_scan(self, submap: int) -> int: ...
 
+class SonarPoseGraphMapperOptions:
+    pings_per_submap: int
+    max_submap_turn_deg: float
+    min_submap_voxels: int
+    matcher: ScanMatcherOptions
+    max_fitness_rmse: float
+    closure_max_distance: float
+    closure_max_heading_difference_deg: float
+    closure_min_submap_gap: int
+    min_closure_pings: int
+    def __init__(self) -> None: ...
+    def validate(self) -> None: ...
+
+class SonarSubmapReport:
+    first_ping: int
+    pings: int
+    occupied_voxels: int
+    closure_attempts: int
+    closures: int
+    refusals: list[str]
+
+class SonarLoopClosure:
+    submap: int
+    target: int
+    relative: npt.NDArray[np.float64]
+    fitness_rmse: float
+    rejected: bool
+
+class SonarSlamSummary:
+    pings: int
+    submaps: int
+    closure_attempts: int
+    closures_found: int
+    closures_refused: int
+    closures_rejected_by_optimizer: int
+    optimizations: int
+    observations: int
+
+class SonarPoseGraphMapper:
+    def __init__(self, map: IMapperBackend, projector: SonarImageProjector,
+                 options: SonarPoseGraphMapperOptions = ...) -> None: ...
+    def integrate(self, nav_pose: Pose, image: npt.ArrayLike, geometry: SonarGeometry) -> None: ...
+    def finish(self) -> None: ...
+    def poses(self) -> list[npt.NDArray[np.float64]]: ...
+    def submaps(self) -> list[SonarSubmapReport]: ...
+    def loop_closures(self) -> list[SonarLoopClosure]: ...
+    def summary(self) -> SonarSlamSummary: ...
+
 class SyntheticWorld:
     @staticmethod
     def street_loop(block_x: float = 200.0, block_y: float = 150.0, street_width: float = 14.0, seed: int = 1) -> SyntheticWorld: ...

@@ -9,6 +9,7 @@
 #include <iwlomap/trajectory_io.h>
 #ifdef IWLOMAP_PYTHON_SLAM
 #include <iwlomap/slam/pose_graph_mapper.h>
+#include <iwlomap/slam/sonar_pose_graph_mapper.h>
 #endif
 
 #include <pybind11/stl.h>
@@ -219,6 +220,72 @@ void bind_slam(py::module_& m) {
       .def("summary", &s::PoseGraphMapper::summary)
       .def("num_submaps", &s::PoseGraphMapper::num_submaps)
       .def("submap_first_scan", &s::PoseGraphMapper::submap_first_scan, py::arg("submap"));
+  py::class_<s::SonarPoseGraphMapperOptions>(m, "SonarPoseGraphMapperOptions",
+                                             "Loop closure for sonar surveys (see SonarPoseGraphMapper).")
+      .def(py::init<>())
+      .def_readwrite("pings_per_submap", &s::SonarPoseGraphMapperOptions::pings_per_submap)
+      .def_readwrite("max_submap_turn_deg", &s::SonarPoseGraphMapperOptions::max_submap_turn_deg)
+      .def_readwrite("min_submap_voxels", &s::SonarPoseGraphMapperOptions::min_submap_voxels)
+      .def_readwrite("matcher", &s::SonarPoseGraphMapperOptions::matcher,
+                     "ScanMatcherOptions; by default branch and bound in +-2 m and +-5 degrees, then planar ICP")
+      .def_readwrite("max_fitness_rmse", &s::SonarPoseGraphMapperOptions::max_fitness_rmse,
+                     "metres; negative: 1.2 voxels; 0: no limit")
+      .def_readwrite("closure_max_distance", &s::SonarPoseGraphMapperOptions::closure_max_distance)
+      .def_readwrite("closure_max_heading_difference_deg",
+                     &s::SonarPoseGraphMapperOptions::closure_max_heading_difference_deg)
+      .def_readwrite("closure_min_submap_gap", &s::SonarPoseGraphMapperOptions::closure_min_submap_gap)
+      .def_readwrite("min_closure_pings", &s::SonarPoseGraphMapperOptions::min_closure_pings)
+      .def("validate", &s::SonarPoseGraphMapperOptions::validate);
+  py::class_<s::SonarSubmapReport>(m, "SonarSubmapReport")
+      .def_readonly("first_ping", &s::SonarSubmapReport::first_ping)
+      .def_readonly("pings", &s::SonarSubmapReport::pings)
+      .def_readonly("occupied_voxels", &s::SonarSubmapReport::occupied_voxels)
+      .def_readonly("closure_attempts", &s::SonarSubmapReport::closure_attempts)
+      .def_readonly("closures", &s::SonarSubmapReport::closures)
+      .def_readonly("refusals", &s::SonarSubmapReport::refusals);
+  py::class_<s::SonarLoopClosure>(m, "SonarLoopClosure")
+      .def_readonly("submap", &s::SonarLoopClosure::submap)
+      .def_readonly("target", &s::SonarLoopClosure::target)
+      .def_property_readonly("relative", [](const s::SonarLoopClosure& x) { return pose_to_numpy(x.relative); })
+      .def_readonly("fitness_rmse", &s::SonarLoopClosure::fitness_rmse)
+      .def_readonly("rejected", &s::SonarLoopClosure::rejected);
+  py::class_<s::SonarSlamSummary>(m, "SonarSlamSummary")
+      .def_readonly("pings", &s::SonarSlamSummary::pings)
+      .def_readonly("submaps", &s::SonarSlamSummary::submaps)
+      .def_readonly("closure_attempts", &s::SonarSlamSummary::closure_attempts)
+      .def_readonly("closures_found", &s::SonarSlamSummary::closures_found)
+      .def_readonly("closures_refused", &s::SonarSlamSummary::closures_refused)
+      .def_readonly("closures_rejected_by_optimizer", &s::SonarSlamSummary::closures_rejected_by_optimizer)
+      .def_readonly("optimizations", &s::SonarSlamSummary::optimizations)
+      .def_readonly("observations", &s::SonarSlamSummary::observations);
+  py::class_<s::SonarPoseGraphMapper>(m, "SonarPoseGraphMapper",
+                                      "Sonar surveys that revisit their lines: submaps matched against older ones "
+                                      "of the same place and heading, a pose graph, every ping mapped at its "
+                                      "corrected pose by finish().")
+      .def(py::init([](std::shared_ptr<IMapperBackend> map, const SonarImageProjector& projector,
+                       const s::SonarPoseGraphMapperOptions& o) {
+             return std::make_unique<s::SonarPoseGraphMapper>(std::move(map), projector, o);
+           }),
+           py::arg("map"), py::arg("projector"), py::arg("options") = s::SonarPoseGraphMapperOptions{})
+      .def(
+          "integrate",
+          [](s::SonarPoseGraphMapper& g, const py::handle& nav_pose, const py::handle& image,
+             const SonarGeometry& geometry) {
+            const Eigen::Isometry3d t = pose_from(nav_pose, "nav_pose");
+            const py::array a = as_array(image, "image");
+            const SonarImageView view = image_view_of(a);
+            py::gil_scoped_release release;
+            g.integrate(t, view, geometry);  // copies the image
+          },
+          py::arg("nav_pose"), py::arg("image"), py::arg("geometry"),
+          "Adds a ping: image (range_bins, beams) taken at nav_pose (4, 4), sonar to map frame.")
+      .def("finish", [](s::SonarPoseGraphMapper& g) { g.finish(); }, py::call_guard<py::gil_scoped_release>(),
+           "Closes the last submap and maps every ping at its corrected pose (once)")
+      .def("poses", [](const s::SonarPoseGraphMapper& g) { return poses_to_list(g.poses()); },
+           "Corrected pose of every ping so far: list of (4, 4), sonar to map")
+      .def("submaps", &s::SonarPoseGraphMapper::submaps)
+      .def("loop_closures", &s::SonarPoseGraphMapper::loop_closures)
+      .def("summary", &s::SonarPoseGraphMapper::summary);
   m.attr("HAS_SLAM") = true;
 #else
   m.attr("HAS_SLAM") = false;

@@ -69,3 +69,48 @@ def test_pose_graph_mapper_closes_a_loop():
         mapper.add_loop_closure(0, 999, np.eye(4), np.eye(6))
     with pytest.raises(ValueError):
         mapper.add_scan(np.eye(4), np.zeros((4, 2)))
+
+
+@pytest.mark.skipif(not iwlomap.HAS_SLAM, reason="built without the SLAM layer")
+def test_sonar_pose_graph_mapper_cuts_submaps_at_turns_and_maps_at_the_end():
+    # A sonar 1 m above a flat floor, pitched 30 degrees down: 6 pings along +x, then 4 back along
+    # -x. Submaps of at most 4 pings, cut where the heading turns: [4, 2] then [4]. A flat floor
+    # seen from two headings closes no loop, so every ping is mapped at its navigation pose.
+    bearings = np.linspace(-0.4, 0.4, 24)
+    geometry = iwlomap.SonarGeometry(bearings=bearings, range_resolution=0.02, max_range=4.0,
+                                     vertical_aperture=np.radians(20.0))
+    image = np.zeros((200, len(bearings)), dtype=np.uint8)
+    image[int(1.0 / np.sin(np.radians(40.0)) / 0.02), :] = 200
+
+    def pose(x, heading):
+        p = np.eye(4)
+        c, s = np.cos(np.radians(-30.0)), np.sin(np.radians(-30.0))
+        level = np.diag([1.0, -1.0, -1.0])  # sonar +Z down, map +z up
+        pitch = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+        ch, sh = np.cos(heading), np.sin(heading)
+        yaw = np.array([[ch, -sh, 0], [sh, ch, 0], [0, 0, 1]])
+        p[:3, :3] = yaw @ level @ pitch
+        p[:3, 3] = [x, 0.0, 1.0]
+        return p
+
+    navigation = [pose(0.1 * k, 0.0) for k in range(6)] + [pose(0.5 - 0.1 * k, np.pi) for k in range(4)]
+    m = iwlomap.ProbabilityUpdater(0.05)
+    options = iwlomap.SonarPoseGraphMapperOptions()
+    options.pings_per_submap = 4
+    gm = iwlomap.SonarPoseGraphMapper(m, iwlomap.SonarImageProjector(0.05, iwlomap.SonarProjectorParams()), options)
+    for p in navigation:
+        gm.integrate(p, image, geometry)
+    assert m.get_num_nodes() == 0  # nothing is mapped before finish()
+    gm.finish()
+    assert [s.pings for s in gm.submaps()] == [4, 2, 4]
+    assert [s.first_ping for s in gm.submaps()] == [0, 4, 6]
+    summary = gm.summary()
+    assert summary.pings == 10 and summary.submaps == 3 and summary.closures_found == 0
+    assert summary.observations > 0 and m.get_num_nodes() > 0
+    for a, b in zip(gm.poses(), navigation):
+        assert np.allclose(a, b, atol=1e-12)
+    with pytest.raises(RuntimeError, match="finish"):
+        gm.finish()
+    options.pings_per_submap = 0
+    with pytest.raises(ValueError, match="pings_per_submap"):
+        iwlomap.SonarPoseGraphMapper(m, iwlomap.SonarImageProjector(0.05, iwlomap.SonarProjectorParams()), options)
