@@ -23,23 +23,51 @@ done
 
 XVFB=(xvfb-run -a -s "-screen 0 1280x1024x24 -noreset")
 
-BUILD_DIR=build-test bash scripts/build.sh -DIWLOMAP_BUILD_TESTS=ON -DIWLOMAP_BUILD_BENCHMARKS=ON
+# Each stage's wall time, printed as it ends and again at the end.
+STAGES=()
+stage_start() { echo "== $1 =="; STAGE_NAME=$1; STAGE_T0=$SECONDS; }
+stage_end() {
+  local t=$((SECONDS - STAGE_T0))
+  STAGES+=("$(printf '%5d s  %s' "$t" "$STAGE_NAME")")
+  echo "== $STAGE_NAME: $t s =="
+}
+trap 'if [ ${#STAGES[@]} -gt 0 ]; then echo "== stage times =="; printf "%s\n" "${STAGES[@]}"; echo "total $SECONDS s"; fi' EXIT
+
+# The benchmarks the tests do not run stay out of the build (IWLOMAP_BENCHMARKS_IN_ALL=OFF).
+stage_start "Release build (tests, samples, examples, the benchmarks the tests run)"
+BUILD_DIR=build-test bash scripts/build.sh -DIWLOMAP_BUILD_TESTS=ON -DIWLOMAP_BUILD_BENCHMARKS=ON \
+  -DIWLOMAP_BENCHMARKS_IN_ALL=OFF
+stage_end
+stage_start "Release tests"
 (cd build-test && "${XVFB[@]}" ctest --output-on-failure -j 2)
-echo "== API reference (zero Doxygen warnings) =="
+stage_end
+stage_start "API reference (zero Doxygen warnings)"
 bash scripts/docs.sh
+stage_end
 
 if [ "$SANITIZE" = 1 ]; then
-  echo "== AddressSanitizer + UndefinedBehaviorSanitizer build =="
+  stage_start "AddressSanitizer + UndefinedBehaviorSanitizer build"
   # The tool too: its tests feed it malformed files and hostile option values.
   BUILD_DIR=build-asan BUILD_TYPE=RelWithDebInfo bash scripts/build.sh -DIWLOMAP_BUILD_TESTS=ON \
     -DIWLOMAP_SANITIZE=ON -DIWLOMAP_WITH_VIEWER=OFF
+  stage_end
+  stage_start "AddressSanitizer + UndefinedBehaviorSanitizer tests"
   (cd build-asan && ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
     ctest --output-on-failure -j 2 -E "Consumer")
-  echo "== Fuzz targets, a short run of each (long runs: docs/reliability.md) =="
+  stage_end
+  stage_start "Fuzz targets, a short run of each (long runs: docs/reliability.md)"
   bash scripts/fuzz.sh 20
-  echo "== ThreadSanitizer build (threaded code) =="
+  stage_end
+  stage_start "ThreadSanitizer build (the test programs of the threaded code)"
   # Without the PCL layer: PCL's io library loads OpenNI2, whose start-up code the sanitizer reports.
-  BUILD_DIR=build-tsan BUILD_TYPE=RelWithDebInfo bash scripts/build.sh -DIWLOMAP_BUILD_TESTS=ON \
-    -DIWLOMAP_TSAN=ON -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_WITH_VIEWER=OFF -DIWLOMAP_WITH_FILTERS=OFF
-  (cd build-tsan && ctest --output-on-failure -j 2 -R "BackgroundJob|Optimizer|PoseGraphMapper.Terminate|AsyncMapper|Threads|RegisteredMapper|RegisteredSonarMapper.Same")
+  # Only the programs holding the tests run below are built.
+  cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DIWLOMAP_BUILD_TESTS=ON -DIWLOMAP_TSAN=ON \
+    -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_WITH_VIEWER=OFF -DIWLOMAP_WITH_FILTERS=OFF
+  cmake --build build-tsan -j "${JOBS:-$(nproc)}" --target test_probability_updater test_background_job \
+    test_optimizer test_outofcore_tile_mapper test_internals test_scan_matcher test_registered_sonar_mapper \
+    test_pose_graph_mapper test_backend_contract
+  stage_end
+  stage_start "ThreadSanitizer tests"
+  (cd build-tsan && ctest --output-on-failure --no-tests=error -j 2 -R "BackgroundJob|Optimizer|PoseGraphMapper.Terminate|AsyncMapper|Threads|RegisteredMapper|RegisteredSonarMapper.Same")
+  stage_end
 fi
