@@ -59,8 +59,9 @@ struct SonarPoseGraphMapperOptions {
   /// A closure whose RMS point-to-plane residual exceeds this is refused (metres; negative: 1.2
   /// times the map's resolution; 0: no limit).
   double max_fitness_rmse = -1.0;
-  /// A new submap is matched against an older one when the centres of their pings' positions
-  /// (current estimates) lie within this distance (metres), their mean headings within
+  /// A new submap is matched against an older one when the centres of the seabed they saw (the
+  /// mean of their occupied voxels, at the current estimates) lie within this distance (metres,
+  /// horizontally), their mean headings within
   /// closure_max_heading_difference_deg, and at least closure_min_submap_gap submaps apart (so
   /// never against the submap just before, whose seabed only abuts it).
   double closure_max_distance = 5.0;
