@@ -5,23 +5,28 @@
 # build-fuzz/corpus/TARGET between runs (seeded by fuzz_make_seeds); a crash, a hang (10 s per
 # input) or an allocation over 1 GiB stops the run, leaves the input in build-fuzz/findings/ and
 # fails the script. Long runs: scripts/fuzz.sh 3600 (see docs/reliability.md).
+# FUZZ_BUILD_DIR=DIR uses DIR instead of build-fuzz; a DIR configured with IWLOMAP_BUILD_FUZZERS=ON
+# already (the test command's sanitizer build) is used as it is configured.
 # usage: scripts/fuzz.sh [SECONDS] [TARGET...]   (targets: fuzz_cloud fuzz_tile fuzz_oculus)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 case "${1:-}" in
-  -h|--help) sed -n '3,9p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+  -h|--help) sed -n '3,10p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
 esac
 SECONDS_EACH=${1:-20}
 [[ "$SECONDS_EACH" =~ ^[1-9][0-9]*$ ]] || { echo "fuzz.sh: SECONDS must be a positive integer, got '$SECONDS_EACH'" >&2; exit 2; }
 shift || true
 TARGETS=("$@")
 [ ${#TARGETS[@]} -gt 0 ] || TARGETS=(fuzz_cloud fuzz_tile fuzz_oculus)
-BUILD=build-fuzz
+BUILD=${FUZZ_BUILD_DIR:-build-fuzz}
 
 bash scripts/setup.sh
-CC=clang CXX=clang++ cmake -S . -B "$BUILD" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DIWLOMAP_BUILD_FUZZERS=ON \
-  -DIWLOMAP_BUILD_TESTS=OFF -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_BUILD_EXAMPLES=OFF \
-  -DIWLOMAP_WITH_VIEWER=OFF -DIWLOMAP_WITH_OCTOMAP=OFF -DIWLOMAP_WITH_FILTERS=OFF >/dev/null
+source scripts/ccache.sh
+if ! grep -q '^IWLOMAP_BUILD_FUZZERS:BOOL=ON' "$BUILD/CMakeCache.txt" 2>/dev/null; then
+  CC=clang CXX=clang++ cmake -S . -B "$BUILD" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DIWLOMAP_BUILD_FUZZERS=ON \
+    -DIWLOMAP_BUILD_TESTS=OFF -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_BUILD_EXAMPLES=OFF \
+    -DIWLOMAP_WITH_VIEWER=OFF -DIWLOMAP_WITH_OCTOMAP=OFF -DIWLOMAP_WITH_FILTERS=OFF "${CCACHE_ARGS[@]}" >/dev/null
+fi
 cmake --build "$BUILD" -j "${JOBS:-$(nproc)}" --target fuzz_make_seeds "${TARGETS[@]}"
 "$BUILD/tests/fuzz/fuzz_make_seeds" "$BUILD/corpus"
 

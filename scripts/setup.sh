@@ -8,7 +8,7 @@ PACKAGES=(build-essential cmake git pkg-config
   libeigen3-dev libpcl-dev liboctomap-dev libvtk9-dev libflann-dev libopenmpi-dev openmpi-bin
   libgtest-dev libgmock-dev libbenchmark-dev
   octomap-tools pcl-tools xvfb xauth doxygen
-  clang libclang-rt-14-dev
+  clang libclang-rt-14-dev ccache
   libceres-dev
   python3-dev python3-pybind11 python3-numpy python3-pytest)
 

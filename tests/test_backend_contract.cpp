@@ -514,7 +514,7 @@ TYPED_TEST(BackendContract, SkipsAndCountsScanPointsPastTheLongestRayLikeRam) {
   EXPECT_EQ(snapshot(*map), snapshot(*ref));
   // Only the two near points were cast.
   auto near = this->make_reference(r);
-  near->insert_scan(Eigen::Vector3d(0.1, 0.1, 0.1), pts({0, 2}, Eigen::placeholders::all), Eigen::Vector2d(100.0, 200.0));
+  near->insert_scan(Eigen::Vector3d(0.1, 0.1, 0.1), pts({0, 2}, Eigen::all), Eigen::Vector2d(100.0, 200.0));
   EXPECT_EQ(snapshot(*map), snapshot(*near));
   // Clipped at max_range, the same far points are cast as free rays again.
   auto clipped = this->make(r);

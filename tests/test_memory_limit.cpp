@@ -8,6 +8,7 @@
 #include "iwlomap/synthetic_scan.h"
 
 #include "backend_test_support.h"
+#include "sanitizers.h"
 
 #include <gtest/gtest.h>
 
@@ -137,7 +138,7 @@ TEST_F(MemoryLimit, BatchesAndDiskTilesStopAtTheLimit) {
 // Under a cap on the address space, a limit below the cap turns what would be std::bad_alloc into
 // MemoryLimitError. Sanitizers reserve more address space than any cap leaves, so they cannot
 // run it.
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#if IWLOMAP_TEST_UNDER_SANITIZER
 TEST_F(MemoryLimit, GivesTheErrorInsteadOfBadAllocUnderAnAddressSpaceCap) {
   GTEST_SKIP() << "address-space caps do not work under sanitizers";
 }

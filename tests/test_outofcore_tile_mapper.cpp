@@ -501,7 +501,8 @@ TEST(OutofcoreTileMapper, ReopensWithCompleteTilesWhenWriterKilledAtRandomMoment
     for (const auto* m : {&got, &before, &after})
       for (const auto& [t, s] : *m) tiles[t] = 0;
     int at_before = 0, at_after = 0, bad = 0;
-    for (const auto& [t, unused] : tiles) {
+    for (const auto& entry : tiles) {
+      const VoxelKey& t = entry.first;
       const Snapshot none;
       const auto state = [&](const TileSnapshots& m) -> const Snapshot& {
         const auto it = m.find(t);
@@ -577,8 +578,8 @@ TEST_F(DamagedTile, ThrowsNamingFileAndNeverReplacesItWhenPayloadByteFlipped) {
     std::size_t victim_voxels = 0;
     const std::string victim_name = fs::path(victim_).filename().string();
     ram.for_each_voxel([&](const VoxelKey& k, const VoxelState&) {
-      const auto edge = 32;
-      const auto fd = [edge](std::int32_t a) { return a >= 0 ? a / edge : -((-a + edge - 1) / edge); };
+      constexpr std::int32_t edge = 32;
+      const auto fd = [](std::int32_t a) { return a >= 0 ? a / edge : -((-a + edge - 1) / edge); };
       const std::string name =
           "tile_" + std::to_string(fd(k.x)) + "_" + std::to_string(fd(k.y)) + "_" + std::to_string(fd(k.z)) + ".iwt";
       victim_voxels += name == victim_name ? 1 : 0;

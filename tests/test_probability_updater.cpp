@@ -8,6 +8,7 @@
 #include "iwlomap/synthetic_scan.h"
 
 #include "backend_test_support.h"
+#include "sanitizers.h"
 
 #include <gtest/gtest.h>
 
@@ -1074,7 +1075,7 @@ namespace {
 // Runs \p scenario in a child process whose address space is limited, so that the map's
 // allocations fail (std::bad_alloc) part-way through a batch; returns the child's exit code.
 // Sanitizers reserve far more address space than any limit leaves, so they cannot run it.
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#if IWLOMAP_TEST_UNDER_SANITIZER
 constexpr bool kCanLimitAddressSpace = false;
 #else
 constexpr bool kCanLimitAddressSpace = true;

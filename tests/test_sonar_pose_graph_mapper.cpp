@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// SonarPoseGraphMapper on short simulated surveys (benchmarks/sonar_sim.h) whose navigation
+// SonarPoseGraphMapper on short simulated surveys (tests/support/sonar_sim.h) whose navigation
 // drifts: a survey that runs its first line again closes loops and ends closer to the truth than
 // its navigation; one that never revisits a line with the same heading finds no closure and maps
 // every ping at its navigation pose; submaps are cut at turns; bad input.

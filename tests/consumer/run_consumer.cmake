@@ -3,14 +3,16 @@
 # iwlomap found the documented way:
 #   MODE=install     the build tree BUILD_DIR installed into WORK/prefix first
 #   MODE=build-tree  the build tree itself
-#   MODE=shared      iwlomap's core and OctoMap layer built as shared libraries from SOURCE_ROOT
-#                    into WORK (so also checks their SONAME), then installed
+#   MODE=shared      iwlomap built as shared libraries (every layer but the filter and the viewer)
+#                    from SOURCE_ROOT into WORK (so also checks each library's SONAME), then installed
 # FLAGS: extra compile flags of the consumer (e.g. -march=native); DISABLE: packages the
 # consumer's configure must not find (CMAKE_DISABLE_FIND_PACKAGE_<name>), to prove a component
-# needs nothing more.
+# needs nothing more; LAUNCHER: the compiler launcher of the calling build (ccache), used by both
+# builds here.
 # Usage: cmake -DMODE=... -DCONSUMER=... -DBUILD_DIR=... -DSOURCE=... -DSOURCE_ROOT=... -DWORK=...
-#              [-DFLAGS=...] [-DDISABLE=PCL;VTK;octomap] -P run_consumer.cmake
+#              [-DFLAGS=...] [-DDISABLE=PCL;VTK;octomap] [-DLAUNCHER=ccache] -P run_consumer.cmake
 file(REMOVE_RECURSE "${WORK}")
+set(launcher "-DCMAKE_CXX_COMPILER_LAUNCHER=${LAUNCHER}" "-DCMAKE_C_COMPILER_LAUNCHER=${LAUNCHER}")
 function(run)
   execute_process(COMMAND ${ARGN} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE out)
   if(rc)
@@ -20,11 +22,16 @@ function(run)
 endfunction()
 
 if(MODE STREQUAL "shared")
-  run(${CMAKE_COMMAND} -S "${SOURCE_ROOT}" -B "${WORK}/iwlomap" -DCMAKE_BUILD_TYPE=Release -DBUILD_SHARED_LIBS=ON
+  run(${CMAKE_COMMAND} -S "${SOURCE_ROOT}" -B "${WORK}/iwlomap" -DCMAKE_BUILD_TYPE=Release -DBUILD_SHARED_LIBS=ON ${launcher}
       -DIWLOMAP_BUILD_TESTS=OFF -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_WITH_VIEWER=OFF -DIWLOMAP_WITH_FILTERS=OFF)
   run(${CMAKE_COMMAND} --build "${WORK}/iwlomap" -j 2)
   run(${CMAKE_COMMAND} --install "${WORK}/iwlomap" --prefix "${WORK}/prefix")
-  foreach(lib core octomap)
+  # Every layer built here installs a versioned library with a versioned SONAME.
+  file(GLOB_RECURSE built LIST_DIRECTORIES false RELATIVE "${WORK}/iwlomap" "${WORK}/iwlomap/libiwlomap_*.so")
+  list(TRANSFORM built REPLACE "^(.*/)?libiwlomap_(.*)\\.so$" "\\2")
+  list(APPEND built core octomap)
+  list(REMOVE_DUPLICATES built)
+  foreach(lib IN LISTS built)
     file(GLOB so "${WORK}/prefix/lib*/libiwlomap_${lib}.so.*.*.*")
     if(NOT so)
       message(FATAL_ERROR "no versioned libiwlomap_${lib}.so.X.Y.Z installed")
@@ -52,7 +59,7 @@ set(disable)
 foreach(p IN LISTS DISABLE)
   list(APPEND disable "-DCMAKE_DISABLE_FIND_PACKAGE_${p}=ON")
 endforeach()
-run(${CMAKE_COMMAND} -S "${SOURCE}" -B "${WORK}/build" ${locate} ${disable} -DCMAKE_BUILD_TYPE=Release
+run(${CMAKE_COMMAND} -S "${SOURCE}" -B "${WORK}/build" ${locate} ${disable} -DCMAKE_BUILD_TYPE=Release ${launcher}
     -DCONSUMER=${CONSUMER} "-DCMAKE_CXX_FLAGS=${FLAGS}" "-DCMAKE_EXE_LINKER_FLAGS=${FLAGS}")
 run(${CMAKE_COMMAND} --build "${WORK}/build")
 run("${WORK}/build/consumer")

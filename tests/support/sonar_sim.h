@@ -1,8 +1,9 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #pragma once
 
-// A synthetic forward-looking imaging sonar with known ground truth, for the sonar accuracy
-// benchmark (bench_sonar_accuracy). Eigen and the standard library only.
+// A synthetic forward-looking imaging sonar with known ground truth, shared by the sonar accuracy
+// benchmark (bench_sonar_accuracy) and the sonar tests (the iwlomap_sonar_sim library of
+// tests/support). Eigen and the standard library only.
 //
 // Scene kObjects (map frame, metres, +z up): a flat seafloor at z = -0.37 (off the voxel layer
 // planes) and five objects standing on it or partly buried: a container-sized box (2 x 1 x 1 m), a low box,
