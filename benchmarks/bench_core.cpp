@@ -201,7 +201,7 @@ ScanInput make_input(std::string name, const Eigen::Vector3d& origin, Eigen::Mat
 
 // ---- the two engines ---------------------------------------------------------------------------
 
-// Lidar semantics (DESIGN.md section 3): intensity threshold 0, so every return is a hit whose
+// Lidar semantics (iwlo.h, IwloParams::intensity_threshold): threshold 0, so every return is a hit whose
 // intensity only weights it, as every point is a hit in OctoMap. Everything else is the default.
 // One thread, explicitly: the comparison is single thread against single thread (OctoMap as Debian
 // ships it is built without OpenMP).

@@ -12,7 +12,7 @@ import statistics
 import time
 
 import iwlomap
-from iwlomap import _iwlomap
+import _iwlomap_bench  # build/python/, built with the benchmarks; never installed
 
 
 def main():
@@ -27,7 +27,7 @@ def main():
         order = ("python", "cpp") if r % 2 else ("cpp", "python")
         for who in order:
             if who == "cpp":
-                t = _iwlomap._bench.insert_scan_seconds(args.resolution, params, origin, points, intensities)
+                t = _iwlomap_bench.insert_scan_seconds(args.resolution, params, origin, points, intensities)
             else:
                 m = iwlomap.ProbabilityUpdater(args.resolution)
                 m.set_params(params)

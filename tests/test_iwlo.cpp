@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// The IWLO update math against values worked out by hand (DESIGN.md section 3). Every expected
-// number below is derived in the comment next to it from the formulas of the design, never by
-// calling the library's own functions.
+// The IWLO update math against values worked out by hand from the formulas of iwlomap/iwlo.h
+// (README, "The IWLO update"). Every expected number below is derived in the comment next to it,
+// never by calling the library's own functions.
 
 #include "iwlomap/iwlo.h"
 
@@ -264,7 +264,7 @@ TEST(IwloProbability, LogOddsRoundTripWhenKnownValues) {
 
 // ---- parameters ------------------------------------------------------------------------------
 
-TEST(IwloParams, DefaultsMatchDesign) {
+TEST(IwloParams, DefaultsMatchTheDocumentedValues) {
   const IwloParams p;
   EXPECT_EQ(p.sharpness, 0.1);
   EXPECT_EQ(p.decay_rate, 0.1);

@@ -19,6 +19,7 @@
 #include "iwlomap/iwlo.h"
 #include "iwlomap/ray_caster.h"
 #include "iwlomap/voxel_key.h"
+#include "iwlomap/voxel_state.h"
 
 #include <Eigen/Core>
 
@@ -39,13 +40,6 @@ struct MemoryStats {
   size_t num_leaf_nodes;     ///< known voxels (OctoMap backend: octree leaves)
   double memory_mb;          ///< bytes held in RAM / 2^20 (MiB)
   double memory_efficiency;  ///< known voxels / allocated voxel slots, in [0, 1]
-};
-
-/// State of one known voxel.
-struct VoxelState {
-  double log_odds = 0.0;     ///< current log-odds L
-  double probability = 0.5;  ///< 1 / (1 + exp(-L))
-  std::uint32_t count = 0;   ///< observations so far (saturates at iwlo::kMaxCount)
 };
 
 /// What a backend may implement beyond the reference API's required methods (see

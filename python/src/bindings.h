@@ -62,7 +62,6 @@ void bind_grids(pybind11::module_& m);
 void bind_async(pybind11::module_& m);
 void bind_octomap(pybind11::module_& m);
 void bind_viewer(pybind11::module_& m);
-void bind_bench(pybind11::module_& m);
 void bind_registration(pybind11::module_& m);
 void bind_slam(pybind11::module_& m);
 

@@ -79,7 +79,6 @@ PYBIND11_MODULE(_iwlomap, m) {
   iwlomap::python::bind_sonar(m);
   iwlomap::python::bind_grids(m);
   iwlomap::python::bind_async(m);
-  iwlomap::python::bind_bench(m);
   iwlomap::python::bind_registration(m);
   iwlomap::python::bind_slam(m);
 #ifdef IWLOMAP_PYTHON_OCTOMAP

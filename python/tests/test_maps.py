@@ -20,6 +20,12 @@ def lidar_map(resolution=0.2):
     return m
 
 
+def test_the_package_ships_no_benchmark_hook():
+    # The timing hook of benchmarks/bench_python.py is a module of its own (_iwlomap_bench).
+    assert not hasattr(iwlomap._iwlomap, "_bench")
+    assert not any(name.startswith("_bench") for name in dir(iwlomap))
+
+
 def test_params_have_the_reference_defaults_and_keywords():
     p = iwlomap.IwloParams()
     assert (p.sharpness, p.decay_rate, p.min_alpha, p.L_min, p.L_max) == (0.1, 0.1, 0.3, -10.0, 10.0)

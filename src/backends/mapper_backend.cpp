@@ -5,8 +5,12 @@
 #include "integrate/batch_input.h"
 #include "integrate/scan_scratch.h"
 #include "model/checks.h"
+#include "iwlomap/voxel_box.h"
 
 #include <algorithm>
+#include <cstdint>
+#include <limits>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -155,6 +159,21 @@ void BackendBase::set_adaptive_params(bool enabled, double threshold, double max
 
 void BackendBase::set_occupied_threshold(double threshold) {
   modify_params([&](IwloParams& p) { p.occupied_threshold = threshold; });
+}
+
+// Declared with VoxelBox (voxel_box.h); defined on the backends floor, which it reads.
+std::optional<VoxelBox> known_voxel_box(const IMapperBackend& map) {
+  constexpr std::int32_t kLow = std::numeric_limits<std::int32_t>::min();
+  constexpr std::int32_t kHigh = std::numeric_limits<std::int32_t>::max();
+  VoxelBox box{{kHigh, kHigh, kHigh}, {kLow, kLow, kLow}};
+  bool any = false;
+  map.for_each_voxel([&](const VoxelKey& k, const VoxelState&) {
+    any = true;
+    box.min = {std::min(box.min.x, k.x), std::min(box.min.y, k.y), std::min(box.min.z, k.z)};
+    box.max = {std::max(box.max.x, k.x), std::max(box.max.y, k.y), std::max(box.max.z, k.z)};
+  });
+  if (!any) return std::nullopt;
+  return box;
 }
 
 }  // namespace iwlomap

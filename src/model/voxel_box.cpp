@@ -1,7 +1,6 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "iwlomap/voxel_box.h"
 
-#include "iwlomap/mapper_backend.h"
 
 #include <algorithm>
 #include <limits>
@@ -44,20 +43,6 @@ std::uint64_t VoxelBox::num_voxels() const noexcept {
 void VoxelBox::validate() const {
   if (min.x > max.x || min.y > max.y || min.z > max.z)
     throw std::invalid_argument("iwlomap: voxel box min key " + key_text(min) + " exceeds max key " + key_text(max));
-}
-
-std::optional<VoxelBox> known_voxel_box(const IMapperBackend& map) {
-  constexpr std::int32_t kLow = std::numeric_limits<std::int32_t>::min();
-  constexpr std::int32_t kHigh = std::numeric_limits<std::int32_t>::max();
-  VoxelBox box{{kHigh, kHigh, kHigh}, {kLow, kLow, kLow}};
-  bool any = false;
-  map.for_each_voxel([&](const VoxelKey& k, const VoxelState&) {
-    any = true;
-    box.min = {std::min(box.min.x, k.x), std::min(box.min.y, k.y), std::min(box.min.z, k.z)};
-    box.max = {std::max(box.max.x, k.x), std::max(box.max.y, k.y), std::max(box.max.z, k.z)};
-  });
-  if (!any) return std::nullopt;
-  return box;
 }
 
 }  // namespace iwlomap

@@ -7,7 +7,7 @@
 #include "model/checks.h"
 #include "storage/block_grid.h"
 #include "iwlomap/iwlo.h"
-#include "iwlomap/mapper_backend.h"
+#include "iwlomap/voxel_state.h"
 
 #include <Eigen/Core>
 

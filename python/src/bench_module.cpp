@@ -1,18 +1,22 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// iwlomap._iwlomap._bench: the C++ side of benchmarks/bench_python.py, so the Python call and the
-// C++ call are timed in one process, interleaved. Not part of the package's API.
+// _iwlomap_bench: the C++ side of benchmarks/bench_python.py, so that the Python call and the C++
+// call are timed in one process, interleaved. A module of its own, built with the benchmarks
+// (IWLOMAP_BUILD_BENCHMARKS) into the build tree's python/ folder and never installed: the iwlomap
+// package ships no benchmark hook. Import iwlomap first (IwloParams is its type).
 
-#include "bindings.h"
 #include "numpy_io.h"
 
 #include <iwlomap/probability_updater.h>
 
+#include <pybind11/pybind11.h>
+
 #include <chrono>
+
+namespace py = pybind11;
 
 namespace iwlomap::python {
 
-void bind_bench(py::module_& m) {
-  py::module_ b = m.def_submodule("_bench", "Timing hooks of benchmarks/bench_python.py (not API).");
+void bind_bench(py::module_& b) {
   b.def(
       "insert_scan_seconds",
       [](double resolution, const IwloParams& params, const py::handle& origin, const py::handle& points,
@@ -34,3 +38,8 @@ void bind_bench(py::module_& m) {
 }
 
 }  // namespace iwlomap::python
+
+PYBIND11_MODULE(_iwlomap_bench, m) {
+  m.doc() = "Timing hooks of benchmarks/bench_python.py (not part of the iwlomap package).";
+  iwlomap::python::bind_bench(m);
+}
