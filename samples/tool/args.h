@@ -36,6 +36,8 @@ class Args {
   [[nodiscard]] long integer(const std::string& name, long fallback, long min = std::numeric_limits<int>::min(),
                              long max = std::numeric_limits<int>::max()) const;
   [[nodiscard]] const std::vector<std::string>& positional() const { return positional_; }
+  /// Every option given with a value, by name.
+  [[nodiscard]] const std::map<std::string, std::string>& values() const { return values_; }
 
  private:
   std::map<std::string, std::string> values_;

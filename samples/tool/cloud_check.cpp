@@ -6,6 +6,8 @@
 #include "args.h"
 
 #include <algorithm>
+#include <cerrno>
+#include <cstdlib>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -105,6 +107,71 @@ std::uint64_t lines_after(std::ifstream& in, std::uint64_t limit) {
   return n;
 }
 
+// One value of an ASCII row: its field, TYPE (F, I, U) and SIZE in bytes.
+struct AsciiField {
+  std::string name;
+  char type;
+  std::uint64_t size;
+};
+
+// True when \p w is one whole number of the field's type and range: F any decimal or
+// scientific number (nan and inf too, as PCL writes them), I and U integers that fit the size.
+bool ascii_value_fits(const std::string& w, const AsciiField& f) {
+  if (w.empty()) return false;
+  errno = 0;
+  char* end = nullptr;
+  if (f.type == 'F') {
+    static_cast<void>(std::strtod(w.c_str(), &end));
+    return end != w.c_str() && *end == '\0' && errno != ERANGE;
+  }
+  const unsigned bits = static_cast<unsigned>(f.size * 8);
+  if (f.type == 'I') {
+    const long long v = std::strtoll(w.c_str(), &end, 10);
+    if (end == w.c_str() || *end != '\0' || errno == ERANGE) return false;
+    if (bits >= 64) return true;
+    const long long limit = 1LL << (bits - 1);
+    return v >= -limit && v < limit;
+  }
+  if (w[0] == '-') return false;
+  const unsigned long long v = std::strtoull(w.c_str(), &end, 10);
+  if (end == w.c_str() || *end != '\0' || errno == ERANGE) return false;
+  return bits >= 64 || v < (1ULL << bits);
+}
+
+// Every data line of an ASCII PCD holds exactly the header's values, each a whole number of its
+// field's type; exactly \p points such lines (empty lines after them allowed). \p in stands at
+// the data, which starts on line \p header_lines + 1. PCL's reader would take a short row, a word
+// that is not a number or "1,5" as zeros or partial numbers without a word.
+void check_ascii_rows(const std::string& path, std::ifstream& in, std::size_t header_lines, std::uint64_t points,
+                      const std::vector<AsciiField>& columns) {
+  std::string line;
+  std::uint64_t rows = 0;
+  std::size_t line_number = header_lines;
+  std::vector<std::string> w;
+  while (std::getline(in, line)) {
+    ++line_number;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    w = words(line);
+    if (w.empty()) continue;
+    const std::string where = "line " + std::to_string(line_number) + ": ";
+    if (rows == points)
+      fail(path, where + "a row after the " + std::to_string(points) + " points the header promises");
+    if (w.size() != columns.size())
+      fail(path, where + std::to_string(w.size()) + " values, but the header declares " +
+                     std::to_string(columns.size()) + " per point");
+    for (std::size_t i = 0; i < w.size(); ++i)
+      if (!ascii_value_fits(w[i], columns[i]))
+        fail(path, where + "field '" + columns[i].name + "' holds '" + w[i] + "', not " +
+                       (columns[i].type == 'F' ? std::string("a number")
+                                               : std::string(columns[i].type == 'I' ? "an integer" : "an unsigned integer") +
+                                                     " of " + std::to_string(columns[i].size) + " byte(s)"));
+    ++rows;
+  }
+  if (rows < points)
+    fail(path, "the header promises " + std::to_string(points) + " points but the file has " + std::to_string(rows) +
+                   " rows of data (truncated?)");
+}
+
 CloudHeader check_pcd(const std::string& path, std::uint64_t file_size) {
   std::ifstream in(path, std::ios::binary);
   const HeaderLines h = read_header(path, in, "DATA");
@@ -113,10 +180,19 @@ CloudHeader check_pcd(const std::string& path, std::uint64_t file_size) {
   std::optional<std::uint64_t> width, height, points;
   std::string data;
   CloudHeader out;
-  for (const std::string& line : h.lines) {
+  std::vector<std::pair<std::string, std::size_t>> seen;  // header keyword, its line number
+  for (std::size_t line_number = 1; line_number <= h.lines.size(); ++line_number) {
+    const std::string& line = h.lines[line_number - 1];
     const auto w = words(line);
     if (w.empty() || w[0][0] == '#') continue;
     const std::string& key = w[0];
+    // A header line given twice is refused, not decided by which comes last.
+    const std::string canonical = key == "COLUMNS" ? "FIELDS" : key;
+    for (const auto& [k, n] : seen)
+      if (k == canonical)
+        fail(path, "line " + std::to_string(line_number) + ": a second " + key + " line (the first is line " +
+                       std::to_string(n) + ")");
+    seen.emplace_back(canonical, line_number);
     const std::vector<std::string> v(w.begin() + 1, w.end());
     const auto numbers = [&](std::vector<std::uint64_t>& dst) {
       for (const std::string& s : v) {
@@ -157,6 +233,9 @@ CloudHeader check_pcd(const std::string& path, std::uint64_t file_size) {
     }
   }
   if (fields.empty()) fail(path, "no FIELDS");
+  for (std::size_t i = 0; i < fields.size(); ++i)
+    for (std::size_t j = 0; j < i; ++j)
+      if (fields[i] == fields[j] && fields[i] != "_") fail(path, "FIELDS lists '" + fields[i] + "' twice");
   if (fields.size() > kMaxValuesPerPoint) fail(path, "FIELDS lists " + std::to_string(fields.size()) + " fields");
   if (counts.empty()) counts.assign(fields.size(), 1);
   if (sizes.size() != fields.size() || types.size() != fields.size() || counts.size() != fields.size())
@@ -192,6 +271,11 @@ CloudHeader check_pcd(const std::string& path, std::uint64_t file_size) {
       fail(path, "the header promises " + std::to_string(out.points) + " points of " + std::to_string(point_size) +
                      " bytes (" + std::to_string(need) + " bytes) but the file holds " + std::to_string(body) +
                      " bytes of data (truncated?)");
+    // A body longer than promised means the header does not describe it (fields or sizes wrong).
+    if (body > need)
+      fail(path, "the header promises " + std::to_string(out.points) + " points of " + std::to_string(point_size) +
+                     " bytes (" + std::to_string(need) + " bytes) but the file holds " + std::to_string(body - need) +
+                     " bytes more after the header");
   } else if (data == "binary_compressed") {
     if (out.points == 0) return out;
     std::uint32_t sizes_of_block[2] = {0, 0};
@@ -205,11 +289,10 @@ CloudHeader check_pcd(const std::string& path, std::uint64_t file_size) {
       fail(path, "the compressed block has " + std::to_string(sizes_of_block[0]) + " bytes but the file holds " +
                      std::to_string(body - sizeof sizes_of_block) + " (truncated?)");
   } else if (data == "ascii") {
-    const std::uint64_t lines = lines_after(in, out.points);
-    // The last line may lack its newline.
-    if (lines + 1 < out.points)
-      fail(path, "the header promises " + std::to_string(out.points) + " points but the file has " +
-                     std::to_string(lines) + " lines of data (truncated?)");
+    std::vector<AsciiField> columns;
+    for (std::size_t i = 0; i < fields.size(); ++i)
+      for (std::uint64_t c = 0; c < counts[i]; ++c) columns.push_back({fields[i], types[i][0], sizes[i]});
+    check_ascii_rows(path, in, h.lines.size(), out.points, columns);
   } else {
     fail(path, "DATA is '" + data + "', not ascii, binary or binary_compressed");
   }

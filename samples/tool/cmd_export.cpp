@@ -43,7 +43,7 @@ int run_export(const std::vector<std::string>& argv) {
   if (!is_map_path(input)) throw UsageError("'" + input + "' is not a tile directory, .bt or .ot file");
   const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
   if (!output) throw UsageError("no output file (-o OUT.pcd|.ply|.bt|.ot)");
-  OutputFiles files;
+  OutputFiles files(args);
   files.add("-o", *output, {".pcd", ".ply", ".bt", ".ot"});
   const std::string ext = extension(*output);
   const double threshold = args.number("--threshold", 0.7);

@@ -118,7 +118,7 @@ int run_street_loop(const Args& args, const std::string& dir) {
     nav.push_back(nav.back() * d);
   }
   std::filesystem::create_directories(dir);
-  OutputFiles files;
+  OutputFiles files(args);
   std::vector<std::string> names;
   for (std::size_t i = 0; i < truth.size(); ++i) {
     char name[32];
@@ -172,7 +172,7 @@ int run_generate(const std::vector<std::string>& argv) {
     if (args.value(o)) throw UsageError(std::string(o) + " needs --street-loop");
   if (!output) throw UsageError("no output file (-o OUT.pcd)");
   if (!args.positional().empty()) throw UsageError("unexpected argument '" + args.positional().front() + "'");
-  OutputFiles files;
+  OutputFiles files(args);
   files.add("-o", *output, {".pcd", ".ply"});
   SyntheticScanOptions opt;
   opt.rings = static_cast<int>(args.integer("--rings", opt.rings));

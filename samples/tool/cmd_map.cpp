@@ -122,7 +122,7 @@ int run_map(const std::vector<std::string>& argv) {
 #endif
   }
   // Every output is checked before any work and written only when all of them can be.
-  OutputFiles files;
+  OutputFiles files(args);
   if (output) files.add("-o", *output, {".pcd", ".ply"});
   const auto poses_out = args.value("--write-poses");
   if (poses_out) files.add("--write-poses", *poses_out, {".txt", ".tum", ".kitti"});

@@ -74,7 +74,7 @@ int run_map_mpi(const Args& args, const std::vector<std::string>& inputs, const 
     }
     // The outputs are rank 0's: it checks them before any work, and every rank learns the verdict
     // (a rank 0 that stopped alone would leave the others waiting in the first collective call).
-    OutputFiles files;
+    OutputFiles files(args);
     MapOutputs extra;
     int verdict = 0;  // 0 ok, else the exit code
     std::exception_ptr failure;

@@ -181,7 +181,7 @@ int run_render(const std::vector<std::string>& argv) {
                      input + "'");
   const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
   if (!output) throw UsageError("no output file (-o OUT.png)");
-  OutputFiles files;
+  OutputFiles files(args);
   files.add("-o", *output, {".png"});
   viewer::SnapshotOptions options = options_from(args);
   const auto resolution_option = args.number("--resolution");

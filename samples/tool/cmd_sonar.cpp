@@ -178,7 +178,7 @@ int run_sonar(const std::vector<std::string>& argv) {
   if (inputs.empty()) throw UsageError("no input file (PINGS.raw)");
   const auto output = args.value("-o") ? args.value("-o") : args.value("--output");
   if (!output) throw UsageError("no output file (-o OUT.pcd)");
-  OutputFiles files;
+  OutputFiles files(args);
   files.add("-o", *output, {".pcd", ".ply"});
   const MapOutputs extra = map_outputs_from(args, files);
   const bool quiet = args.flag("-q") || args.flag("--quiet");
@@ -235,6 +235,8 @@ int run_sonar(const std::vector<std::string>& argv) {
     throw UsageError("--aperture must be in [0, 180) degrees, got " + shortest(aperture_deg));
   const double min_range = args.number("--min-range", 0.0);
   const std::optional<double> max_range = args.number("--max-range");
+  if (max_range && !(*max_range > 0.0))
+    throw UsageError("--max-range must be > 0 metres, got " + shortest(*max_range) + " (leave it out for each ping's range)");
   std::optional<SonarImageProjector> projector;
   try {
     projector.emplace(setup.map->get_resolution(), params);

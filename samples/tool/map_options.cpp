@@ -147,6 +147,10 @@ MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base,
   double resolution = args.number("--resolution", 0.05);
   if (!(resolution > 0.0)) throw UsageError("--resolution must be > 0");
   s.max_range = args.number("--max-range", -1.0);
+  // The library reads a negative range as "no limit"; given on the command line, 0 or a negative
+  // value is a mistake, not a request for no limit (leave the option out for that).
+  if (args.has("--max-range") && !(s.max_range > 0.0))
+    throw UsageError("--max-range must be > 0 metres, got " + shortest(s.max_range) + " (leave it out for no limit)");
   s.ray_casting = !args.flag("--no-rays");
 
   std::string backend = args.value("--backend").value_or("ram");

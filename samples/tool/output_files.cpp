@@ -16,6 +16,29 @@ namespace iwlomap::tool {
 
 namespace fs = std::filesystem;
 
+namespace {
+
+// True when \p a and \p b name the same file: the same inode when both exist (links included),
+// else the same normalised absolute path.
+bool same_file(const fs::path& a, const fs::path& b) {
+  std::error_code ec;
+  if (fs::exists(a, ec) && fs::exists(b, ec)) {
+    const bool same = fs::equivalent(a, b, ec);
+    if (!ec) return same;
+  }
+  const fs::path ca = fs::weakly_canonical(a, ec);
+  if (ec) return false;
+  const fs::path cb = fs::weakly_canonical(b, ec);
+  return !ec && ca == cb;
+}
+
+}  // namespace
+
+OutputFiles::OutputFiles(const Args& args) {
+  for (const std::string& p : args.positional()) inputs_.emplace_back("the input", p);
+  for (const auto& [option, value] : args.values()) inputs_.emplace_back(option, value);
+}
+
 OutputFiles::~OutputFiles() {
   if (committed_) return;
   for (const std::string& t : temporaries_) std::remove(t.c_str());
@@ -42,6 +65,13 @@ void OutputFiles::add(const std::string& option, const std::string& path, std::i
   for (const std::string& other : targets_)
     if (fs::weakly_canonical(other, ec) == fs::weakly_canonical(target, ec))
       throw UsageError("'" + path + "' is given as two outputs");
+  // An output never replaces an input: refused before any work, whatever the spelling or link.
+  for (const auto& [given_by, input] : inputs_) {
+    if (given_by == option) continue;  // the option's own value is this output
+    if (same_file(target, fs::path(input)))
+      throw UsageError(option + " '" + path + "' is the same file as " + given_by + " '" + input +
+                       "': an output may not replace an input");
+  }
   targets_.push_back(path);
   // Hidden, in the target's folder (so the rename stays on one file system), unique per process.
   const std::string name = "." + target.stem().string() + ".iwlomap-" + std::to_string(::getpid()) + "-" +

@@ -2,7 +2,8 @@
 #pragma once
 
 // The files one run of a command writes, handled as a set: every path is checked before any work
-// (a known extension, an existing and writable folder, not a folder itself), each file is written
+// (a known extension, an existing and writable folder, not a folder itself, not one of the run's
+// inputs, also through a link), each file is written
 // to a temporary in its own folder, and commit() renames the temporaries over the targets only
 // after every writer succeeded. A run that fails (an exception before commit()) removes its
 // temporaries, so it leaves no output at all, neither new nor torn.
@@ -10,22 +11,29 @@
 #include <functional>
 #include <initializer_list>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace iwlomap::tool {
 
+class Args;
+
 class OutputFiles {
  public:
-  OutputFiles() = default;
+  /// The outputs of the run whose command line is \p args: its positional arguments and the
+  /// values of its other options are the paths an output may not be.
+  explicit OutputFiles(const Args& args);
   OutputFiles(const OutputFiles&) = delete;
   OutputFiles& operator=(const OutputFiles&) = delete;
   /// Removes the temporaries of an uncommitted run.
   ~OutputFiles();
 
   /// Adds \p path, given by \p option (named in errors), to the set and checks it now. Throws
-  /// UsageError when its extension is not one of \p extensions (lower case, with the dot) or it
-  /// is given twice, and std::runtime_error naming the path when its folder does not exist or is
-  /// not writable or the path is a folder.
+  /// UsageError when its extension is not one of \p extensions (lower case, with the dot), it
+  /// is given twice, or it is the same file as an input (a positional argument or another
+  /// option's value: the same path, or the same file through a symbolic or hard link), and
+  /// std::runtime_error naming the path when its folder does not exist or is not writable or the
+  /// path is a folder.
   void add(const std::string& option, const std::string& path, std::initializer_list<const char*> extensions);
 
   /// The temporary to write \p path into: a hidden file in the same folder with the same
@@ -45,6 +53,7 @@ class OutputFiles {
   [[nodiscard]] const std::vector<std::string>& paths() const { return targets_; }
 
  private:
+  std::vector<std::pair<std::string, std::string>> inputs_;  // (where it was given, path)
   std::vector<std::string> targets_;
   std::vector<std::string> temporaries_;
   bool committed_ = false;

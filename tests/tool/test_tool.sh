@@ -307,7 +307,24 @@ expect unwritable_names_path grep -q "/nonexistent-dir/y.pcd" "$WORK/unwritable_
 mkdir -p "$WORK/a_folder.pcd"
 check output_is_folder 1 "$TOOL" map "$WORK/scan.pcd" -o "$WORK/a_folder.pcd"
 expect output_is_folder_says_so grep -q "is a folder" "$WORK/output_is_folder.err"
+check max_range_zero 2 "$TOOL" map "$WORK/scan.pcd" --max-range 0 -o "$WORK/never.pcd"
+expect max_range_zero_says_so grep -q -- "--max-range must be > 0" "$WORK/max_range_zero.err"
+check max_range_negative 2 "$TOOL" map "$WORK/scan.pcd" --max-range -1 -o "$WORK/never.pcd"
 check same_output_twice 2 "$TOOL" map "$WORK/scan.pcd" -o "$WORK/twice.pcd" --snapshot "$WORK/./twice.pcd"
+# An output never replaces an input: the same path, a symbolic link to it or a hard link of it is
+# refused before any work and the input is left as it was.
+cp "$WORK/scan.pcd" "$WORK/precious.pcd"
+precious_sum=$(md5sum <"$WORK/precious.pcd")
+check output_is_input 2 "$TOOL" map "$WORK/precious.pcd" --resolution 0.2 -o "$WORK/precious.pcd"
+expect output_is_input_says_so grep -q "may not replace an input" "$WORK/output_is_input.err"
+expect output_is_input_one_line one_line output_is_input
+ln -sf precious.pcd "$WORK/link_to_precious.pcd"
+check output_is_input_by_symlink 2 "$TOOL" map "$WORK/precious.pcd" --resolution 0.2 -o "$WORK/link_to_precious.pcd"
+ln -f "$WORK/precious.pcd" "$WORK/hard_link_of_precious.pcd"
+check output_is_input_by_hard_link 2 "$TOOL" map "$WORK/hard_link_of_precious.pcd" --resolution 0.2 \
+  --snapshot "$WORK/snap_never.png" -o "$WORK/precious.pcd"
+expect output_is_input_kept test "$(md5sum <"$WORK/precious.pcd")" = "$precious_sum"
+expect output_is_input_no_other_output test ! -e "$WORK/snap_never.png"
 # All or nothing: when one output fails (here OctoMap cannot hold a voxel 9 km out), none is left.
 printf '# .PCD v0.7\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH 2\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2\nDATA ascii\n1 1 1 200\n9000 0 0 200\n' >"$WORK/far.pcd"
 if has_layer octomap; then
@@ -368,6 +385,31 @@ printf '# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 
 hostile header_truncated.pcd DATA
 printf 'ply\nformat binary_little_endian 1.0\nelement vertex 4294967296\nproperty float x\nproperty float y\nproperty float z\nend_header\n0123456789ab' >"$WORK/vertex_huge.ply"
 hostile vertex_huge.ply vertex
+# Strict rows and headers: PCL's reader would take these as zeros, partial numbers or the last of
+# two header lines, with exit code 0. The error names the line and the field.
+pcd ascii_short_row.pcd "4 4 4 4" "$F4" "1 1 1 1" 2 "$V" ascii '1 2 3 4\n4 5\n'
+hostile ascii_short_row.pcd "line 13: 2 values, but the header declares 4"
+pcd ascii_six_values.pcd "4 4 4 4" "$F4" "1 1 1 1" 1 "$V" ascii '1 2 3 4 5 6\n'
+hostile ascii_six_values.pcd "line 12: 6 values"
+pcd ascii_word.pcd "4 4 4 4" "$F4" "1 1 1 1" 1 "$V" ascii 'abc 2 3 100\n'
+hostile ascii_word.pcd "field 'x' holds 'abc', not a number"
+pcd ascii_comma.pcd "4 4 4 4" "$F4" "1 1 1 1" 1 "$V" ascii '1 1,5 3 100\n'
+hostile ascii_comma.pcd "field 'y' holds '1,5'"
+pcd ascii_suffix.pcd "4 4 4 4" "$F4" "1 1 1 1" 1 "$V" ascii '1 2 1.5abc 100\n'
+hostile ascii_suffix.pcd "field 'z' holds '1.5abc'"
+pcd ascii_byte_range.pcd "4 4 4 1" "F F F U" "1 1 1 1" 1 "$V" ascii '1 2 3 300\n'
+hostile ascii_byte_range.pcd "not an unsigned integer of 1 byte"
+pcd ascii_extra_row.pcd "4 4 4 4" "$F4" "1 1 1 1" 1 "$V" ascii '1 2 3 4\n5 6 7 8\n'
+hostile ascii_extra_row.pcd "line 13: a row after the 1 points"
+pcd binary_long.pcd "4 4 4 4" "$F4" "1 1 1 1" 1 "$V" binary '0123456789abcdef0123'
+hostile binary_long.pcd "4 bytes more"
+printf '# .PCD v0.7\nVERSION 0.7\nFIELDS x y z intensity\nFIELDS y x z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n1 2 3 4\n' >"$WORK/fields_twice.pcd"
+hostile fields_twice.pcd "line 4: a second FIELDS line (the first is line 3)"
+printf '# .PCD v0.7\nVERSION 0.7\nFIELDS x y z z\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n1 2 3 4\n' >"$WORK/field_named_twice.pcd"
+hostile field_named_twice.pcd "FIELDS lists 'z' twice"
+# What PCL writes in ASCII is read: nan, exponents, signs, a last row without its newline.
+pcd ascii_pcl_forms.pcd "4 4 4 4" "$F4" "1 1 1 1" 3 "$V" ascii '1 2 3 4\nnan nan nan 0\n-1.5e+00 2E1 +3 7'
+check ascii_pcl_forms 0 "$TOOL" info "$WORK/ascii_pcl_forms.pcd"
 mkdir -p "$WORK/a_folder_named.pcd"
 check hostile_folder 1 timeout 20 "$TOOL" map "$WORK/a_folder_named.pcd"
 expect hostile_folder_one_line one_line hostile_folder
