@@ -64,7 +64,8 @@ sonar:
   --aperture DEG            vertical aperture of the beams in degrees (default 20; the file does
                             not record it: Oculus M-series heads have 12-20 degrees)
   --min-range M             no evidence closer than M metres (default 0)
-  --max-range M             no evidence beyond M metres (default: each ping's range setting)
+  --max-range M             no evidence beyond M metres (> 0; default and 'none': each ping's
+                            range setting)
   --stride V                range step of the samples along a beam, in voxels (default 0.5)
   --elevation-spacing V     spacing of the samples across the aperture, in voxels (default 1)
   --band M                  length of the occupied band after the first echo, metres (default 0)
@@ -234,9 +235,11 @@ int run_sonar(const std::vector<std::string>& argv) {
   if (!(aperture_deg >= 0.0 && aperture_deg < 180.0))
     throw UsageError("--aperture must be in [0, 180) degrees, got " + shortest(aperture_deg));
   const double min_range = args.number("--min-range", 0.0);
-  const std::optional<double> max_range = args.number("--max-range");
+  // "none" (or no option): each ping's own range; 0 or a negative value is a mistake.
+  const std::optional<double> max_range =
+      args.value("--max-range") == "none" ? std::optional<double>{} : args.number("--max-range");
   if (max_range && !(*max_range > 0.0))
-    throw UsageError("--max-range must be > 0 metres, got " + shortest(*max_range) + " (leave it out for each ping's range)");
+    throw UsageError("--max-range must be > 0 metres or 'none', got " + shortest(*max_range));
   std::optional<SonarImageProjector> projector;
   try {
     projector.emplace(setup.map->get_resolution(), params);

@@ -31,7 +31,8 @@ std::set<std::string> map_flag_options() { return {"--no-rays", "--no-adaptive"}
 std::string map_options_help(bool rays) {
   const IwloParams d;
   const auto num = [](double v) { return shortest(v); };
-  const std::string ray_options = rays ? R"(  --max-range M             clip rays longer than M metres; those points give no hit (default: none)
+  const std::string ray_options = rays ? R"(  --max-range M             clip rays longer than M metres (> 0); those points give no hit
+                            (default and 'none': no limit)
   --no-rays                 no ray casting: every point is one observation, occupied iff its
                             intensity exceeds the threshold (sonar pipelines)
 )" : "";
@@ -146,11 +147,11 @@ MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base,
 
   double resolution = args.number("--resolution", 0.05);
   if (!(resolution > 0.0)) throw UsageError("--resolution must be > 0");
-  s.max_range = args.number("--max-range", -1.0);
-  // The library reads a negative range as "no limit"; given on the command line, 0 or a negative
-  // value is a mistake, not a request for no limit (leave the option out for that).
-  if (args.has("--max-range") && !(s.max_range > 0.0))
-    throw UsageError("--max-range must be > 0 metres, got " + shortest(s.max_range) + " (leave it out for no limit)");
+  // "none" (or no option) is no limit, the library's negative range; 0 or a negative value on the
+  // command line is a mistake, not a request for no limit.
+  s.max_range = args.value("--max-range") == "none" ? -1.0 : args.number("--max-range", -1.0);
+  if (args.has("--max-range") && args.value("--max-range") != "none" && !(s.max_range > 0.0))
+    throw UsageError("--max-range must be > 0 metres or 'none', got " + shortest(s.max_range));
   s.ray_casting = !args.flag("--no-rays");
 
   std::string backend = args.value("--backend").value_or("ram");

@@ -310,6 +310,9 @@ expect output_is_folder_says_so grep -q "is a folder" "$WORK/output_is_folder.er
 check max_range_zero 2 "$TOOL" map "$WORK/scan.pcd" --max-range 0 -o "$WORK/never.pcd"
 expect max_range_zero_says_so grep -q -- "--max-range must be > 0" "$WORK/max_range_zero.err"
 check max_range_negative 2 "$TOOL" map "$WORK/scan.pcd" --max-range -1 -o "$WORK/never.pcd"
+check max_range_none 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --max-range none -o "$WORK/max_range_none.pcd"
+check max_range_default 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 -o "$WORK/max_range_default.pcd"
+expect max_range_none_is_no_limit cmp -s "$WORK/max_range_none.pcd" "$WORK/max_range_default.pcd"
 check same_output_twice 2 "$TOOL" map "$WORK/scan.pcd" -o "$WORK/twice.pcd" --snapshot "$WORK/./twice.pcd"
 # An output never replaces an input: the same path, a symbolic link to it or a hard link of it is
 # refused before any work and the input is left as it was.
