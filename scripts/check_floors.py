@@ -33,10 +33,9 @@ LAYERS = {
     "mpi": set(),
 }
 PROGRAMS = {"samples", "examples", "benchmarks", "python", "tests"}
-# The public header folder of each layer (include/iwlomap/<name>/); the core's headers sit
-# directly in include/iwlomap/.
-LAYER_OF_HEADER_DIR = {"filters": "filters", "viewer": "viewer", "registration": "registration",
-                       "slam": "slam", "mpi": "mpi", "octomap": "octomap"}
+# The layers whose public headers sit in a folder of their name (include/iwlomap/<layer>/); the
+# core's headers sit directly in include/iwlomap/.
+LAYER_HEADER_DIRS = {"filters", "viewer", "registration", "slam", "mpi", "octomap"}
 # The OctoMap layer's headers directly under iwlomap/ (kept at their old path for users).
 OCTOMAP_FLAT_HEADERS = {"octree_mapper.h"}
 
@@ -113,8 +112,8 @@ def main():
                 target_parts = inc.split("/")
                 if target_parts[0] == "iwlomap":
                     # A public header.
-                    if len(target_parts) == 3 and target_parts[1] in LAYER_OF_HEADER_DIR:
-                        target_layer = LAYER_OF_HEADER_DIR[target_parts[1]]
+                    if len(target_parts) == 3 and target_parts[1] in LAYER_HEADER_DIRS:
+                        target_layer = target_parts[1]
                     elif len(target_parts) == 2 and target_parts[1] in OCTOMAP_FLAT_HEADERS:
                         target_layer = "octomap"
                     elif len(target_parts) == 2:

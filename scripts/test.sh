@@ -42,13 +42,13 @@ report() {
   echo "== stage times =="
   printf "%s\n" "${STAGES[@]}"
   echo "total $SECONDS s"
-  if [ ${#CCACHE_ARGS[@]} -gt 0 ] && [ -n "${CCACHE_ARGS[0]#*=}" ]; then
+  if [ "$CCACHE_ON" = 1 ]; then
     ccache --print-stats 2>/dev/null | awk -F'\t' '$1 ~ /^(direct_cache_hit|preprocessed_cache_hit|cache_miss)$/ {n[$1]=$2}
       END {h=n["direct_cache_hit"]+n["preprocessed_cache_hit"]; printf "ccache: %d compiles from the cache, %d compiled\n", h, n["cache_miss"]}'
   fi
 }
 trap report EXIT
-[ ${#CCACHE_ARGS[@]} -gt 0 ] && [ -n "${CCACHE_ARGS[0]#*=}" ] && ccache --zero-stats >/dev/null
+[ "$CCACHE_ON" = 1 ] && ccache --zero-stats >/dev/null
 
 # The benchmarks the tests do not run stay out of the build (IWLOMAP_BENCHMARKS_IN_ALL=OFF).
 stage_start "Release build (tests, samples, examples, the benchmarks the tests run)"

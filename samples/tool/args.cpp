@@ -65,6 +65,13 @@ std::optional<double> Args::number(const std::string& name) const {
 
 double Args::number(const std::string& name, double fallback) const { return number(name).value_or(fallback); }
 
+std::optional<double> Args::positive_or_none(const std::string& name) const {
+  if (value(name) == "none") return std::nullopt;
+  const std::optional<double> d = number(name);
+  if (d && !(*d > 0.0)) throw UsageError(name + " must be > 0 metres or 'none', got " + shortest(*d));
+  return d;
+}
+
 long Args::integer(const std::string& name, long fallback, long min, long max) const {
   const auto v = value(name);
   if (!v) return fallback;

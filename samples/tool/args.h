@@ -31,6 +31,9 @@ class Args {
   /// The option's value as a finite number, or \p fallback when absent.
   [[nodiscard]] double number(const std::string& name, double fallback) const;
   [[nodiscard]] std::optional<double> number(const std::string& name) const;
+  /// The option's value as a finite number > 0, or std::nullopt when absent or "none"; UsageError
+  /// for 0, a negative value or anything else (e.g. --max-range: "none" is no limit).
+  [[nodiscard]] std::optional<double> positive_or_none(const std::string& name) const;
   /// The option's value as an integer in [\p min, \p max] (UsageError otherwise, also for a sign
   /// or space around it, or a value beyond the range of long), or \p fallback when absent.
   [[nodiscard]] long integer(const std::string& name, long fallback, long min = std::numeric_limits<int>::min(),

@@ -236,10 +236,7 @@ int run_sonar(const std::vector<std::string>& argv) {
     throw UsageError("--aperture must be in [0, 180) degrees, got " + shortest(aperture_deg));
   const double min_range = args.number("--min-range", 0.0);
   // "none" (or no option): each ping's own range; 0 or a negative value is a mistake.
-  const std::optional<double> max_range =
-      args.value("--max-range") == "none" ? std::optional<double>{} : args.number("--max-range");
-  if (max_range && !(*max_range > 0.0))
-    throw UsageError("--max-range must be > 0 metres or 'none', got " + shortest(*max_range));
+  const std::optional<double> max_range = args.positive_or_none("--max-range");
   std::optional<SonarImageProjector> projector;
   try {
     projector.emplace(setup.map->get_resolution(), params);

@@ -149,9 +149,7 @@ MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base,
   if (!(resolution > 0.0)) throw UsageError("--resolution must be > 0");
   // "none" (or no option) is no limit, the library's negative range; 0 or a negative value on the
   // command line is a mistake, not a request for no limit.
-  s.max_range = args.value("--max-range") == "none" ? -1.0 : args.number("--max-range", -1.0);
-  if (args.has("--max-range") && args.value("--max-range") != "none" && !(s.max_range > 0.0))
-    throw UsageError("--max-range must be > 0 metres or 'none', got " + shortest(s.max_range));
+  s.max_range = args.positive_or_none("--max-range").value_or(-1.0);
   s.ray_casting = !args.flag("--no-rays");
 
   std::string backend = args.value("--backend").value_or("ram");
