@@ -50,7 +50,8 @@ PUBLIC_FLOORS = {"version.h": 0, "voxel_state.h": 0, "ray_caster.h": 0, "stop_to
 BACKEND_KIT_LAYERS = {"octomap", "mpi"}
 BACKEND_KIT = {
     "backends/pimpl.h", "backends/backend_access.h",
-    "backends/disk/file_io.h", "backends/disk/map_directory.h", "backends/disk/tile_file.h",
+    "backends/disk/file_io.h", "backends/disk/map_directory.h", "backends/disk/map_manifest.h",
+    "backends/disk/tile_file.h",
     "integrate/absolute_log_odds.h", "integrate/batch_input.h", "integrate/hit_accumulator.h",
     "integrate/scan_apply.h", "integrate/scan_scratch.h", "integrate/updater.h",
     "integrate/voxel_update.h",

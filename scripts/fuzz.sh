@@ -7,7 +7,7 @@
 # fails the script. Long runs: scripts/fuzz.sh 3600 (see docs/reliability.md).
 # FUZZ_BUILD_DIR=DIR uses DIR instead of build-fuzz; a DIR configured with IWLOMAP_BUILD_FUZZERS=ON
 # already (the test command's sanitizer build) is used as it is configured.
-# usage: scripts/fuzz.sh [SECONDS] [TARGET...]   (targets: fuzz_cloud fuzz_tile fuzz_oculus)
+# usage: scripts/fuzz.sh [SECONDS] [TARGET...]   (targets: fuzz_cloud fuzz_tile fuzz_manifest fuzz_oculus)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 case "${1:-}" in
@@ -17,7 +17,7 @@ SECONDS_EACH=${1:-20}
 [[ "$SECONDS_EACH" =~ ^[1-9][0-9]*$ ]] || { echo "fuzz.sh: SECONDS must be a positive integer, got '$SECONDS_EACH'" >&2; exit 2; }
 shift || true
 TARGETS=("$@")
-[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(fuzz_cloud fuzz_tile fuzz_oculus)
+[ ${#TARGETS[@]} -gt 0 ] || TARGETS=(fuzz_cloud fuzz_tile fuzz_manifest fuzz_oculus)
 BUILD=${FUZZ_BUILD_DIR:-build-fuzz}
 
 bash scripts/setup.sh

@@ -43,45 +43,54 @@ struct DiskMapInfo {
 };
 
 /// The out-of-core backend. Space is cut into cubic tiles of `tile_size` metres; each tile that
-/// holds a known voxel is one file `tile_<x>_<y>_<z>.iwt` of sparse 8^3 block records in the map
-/// directory, beside a small metadata file `iwlomap_map.meta` (format version, resolution, tile
-/// size), a lock file `iwlomap_map.lock` and, between flushes, the staging file described below.
-/// At most `cache_tiles` tiles are resident in RAM between calls (the least recently used one is
-/// evicted; a tile is read and checked before a victim is chosen, so for a moment there may be one
-/// more). Updates go to resident tiles with exactly the RAM backend's math, so both backends give
-/// the same per-voxel log-odds and counts, bit for bit, for the same input.
+/// holds a known voxel is one file `tile_<x>_<y>_<z>.g<c>.iwt` of sparse 8^3 block records in the
+/// map directory (c is the commit that wrote it), beside a small metadata file `iwlomap_map.meta`
+/// (format version, resolution, tile size), the manifest `iwlomap_map.manifest` (which file holds
+/// each tile, the parameters), the lock files `iwlomap_map.lock` and `iwlomap_map.readers` and,
+/// between flushes, the staging file described below. At most `cache_tiles` tiles are resident in
+/// RAM between calls (the least recently used one is evicted; a tile is read and checked before a
+/// victim is chosen, so for a moment there may be one more). Updates go to resident tiles with
+/// exactly the RAM backend's math, so both backends give the same per-voxel log-odds and counts,
+/// bit for bit, for the same input.
 ///
-/// Durability: a dirty tile that is evicted is appended to the staging file `iwlomap_map.staging`
-/// (one file for all evicted tiles, not fsync'ed: creating a file per eviction would cost more
-/// than the update itself); evicted tiles are read back from there. flush() writes every tile
-/// whose newest state is not in its tile file (dirty resident tiles, staged tiles) to a temporary
-/// file in the map directory, fsyncs it, renames it over the tile file and fsyncs the directory
-/// once; then the staging file is deleted. So tile files change only at a flush, and a crash at
-/// any moment leaves each tile in the state of the last flush that reached it (its previous or its
-/// new state, never a torn one); the next open deletes the staging file and leftover temporary
-/// files. The staging file is rewritten without dead images when more than half of it is dead
-/// (and it is 1 MiB or more); between flushes it holds at most about twice the evicted tiles. The
+/// Commits: the map on disk changes only at flush(), all at once. A dirty tile that is evicted is
+/// appended to the staging file `iwlomap_map.staging` (one file for all evicted tiles, not
+/// fsync'ed: creating a file per eviction would cost more than the update itself); evicted tiles
+/// are read back from there. flush() writes every tile whose newest state is not committed (dirty
+/// resident tiles, staged tiles) to a new file of the next commit, fsyncs it, syncs the directory
+/// and then replaces the manifest (temporary file, fsync, rename): that rename is the commit. So
+/// a flush that fails (full disk, a damaged staged image) leaves the map exactly as the previous
+/// commit left it, and a crash or kill at any moment leaves the map of the last commit that
+/// completed, never a mix of two; the next open removes the files of an unfinished commit and the
+/// staging file. Files a commit no longer needs are removed once no read-only mapper holds the
+/// map (they may be reading them). The staging file is rewritten without dead images when more
+/// than half of it is dead (and it is 1 MiB or more); between flushes it holds at most about twice
+/// the evicted tiles. rollback() returns to the last commit without writing anything. The
 /// destructor flushes; it never throws, so a failure there is swallowed and the unwritten changes
-/// are lost while every tile file keeps its last complete state: call flush() first to see errors.
+/// are lost while the map keeps its last commit: call flush() first to see errors, or rollback()
+/// to give the changes up (as the tool does when a run fails).
 ///
 /// Reopening: a mapper constructed on an existing map directory continues that map with the same
-/// contents. The constructor reads the metadata and every tile header (not the whole tiles): a
-/// resolution other than the stored one, or a tile size that does not round to the stored number
-/// of voxels, throws std::invalid_argument; a damaged
-/// header or a truncated tile throws StorageError (kCorrupt) naming the file; a file of a newer
-/// format throws StorageError (kNewerVersion). A tile's payload checksum is verified whenever the
-/// tile is read; a mismatch throws StorageError (kCorrupt) naming the file, and the tile is never
-/// replaced by an empty one: every later call that needs it throws the same way until the file is
-/// moved away or clear() is called. The IWLO parameters and the hit-statistics setting belong
-/// to the map: they are stored in the metadata and restored on reopen. Setting other parameters
-/// (set_params() or a grouped setter) records them in the metadata at once, durably: a map always
-/// states the parameters its latest updates used (changing them mid-survey, for a new sensor
-/// setting, is legitimate, and a map that refused it would have to be rebuilt). The skipped-point
-/// count belongs to the object.
+/// contents. The constructor reads the metadata, the manifest and the header of every tile file
+/// the manifest names (not the whole tiles): a resolution other than the stored one, or a tile
+/// size that does not round to the stored number of voxels, throws std::invalid_argument; a
+/// damaged manifest or header, a missing, truncated or replaced tile file, or a tile file the
+/// manifest does not name (copied in from elsewhere) throws StorageError (kCorrupt) naming the
+/// file; a file of a newer
+/// format throws StorageError (kNewerVersion). A map written before manifests (format 1 or 2) is
+/// read from its tile files and gets a manifest, and format 3, at its first commit; older builds then refuse it as newer. A tile's header, checksums
+/// and identity (the header checksum the manifest recorded) are verified whenever the tile is
+/// read; a mismatch throws StorageError (kCorrupt) naming the file, and the tile is never replaced
+/// by an empty one: every later call that needs it throws the same way until clear(). The IWLO
+/// parameters and the hit-statistics setting belong to the map: set_params() (or a grouped
+/// setter) and set_hit_accumulation() take effect at once and are recorded by the next commit, in
+/// the manifest, and restored on reopen: a map always states the parameters its latest updates
+/// used (changing them mid-survey, for a new sensor setting, is legitimate, and a map that refused
+/// it would have to be rebuilt). The skipped-point count belongs to the object.
 ///
 /// I/O errors: a failed write (unwritable directory, full disk) throws StorageError (kIo) naming
-/// the file; the previous file of that tile stays intact and the tile keeps its newest state (dirty
-/// in RAM, or staged), so a later flush() can still write it. A staged image is checked (checksum)
+/// the file; the map keeps its last commit and every tile its newest state (dirty in RAM, or
+/// staged), so a later flush() can still write it. A staged image is checked (checksum)
 /// before it replaces a tile file. Input errors (sizes, weights, keys) throw before anything
 /// changes, as in every backend. An update whose tiles fit in the cache loads them all before it
 /// changes any voxel, so a read or eviction error leaves the map unchanged; an update that spans
@@ -120,9 +129,11 @@ class OutofcoreTileMapper final : public BackendBase {
   explicit OutofcoreTileMapper(const std::string& directory, double resolution = 0.05, double tile_size = 10.0,
                                size_t cache_tiles = 16);
   /// Opens the map in \p directory read-only, at its stored resolution and tile size, keeping at
-  /// most \p cache_tiles tiles (>= 1) in RAM: no lock is taken and nothing in the directory is
-  /// created, removed or written, so a map can be read while a writer has it open (each tile read
-  /// is one complete committed state of its file) or on a read-only file system. Every method that
+  /// most \p cache_tiles tiles (>= 1) in RAM: it reads the last commit and sees exactly that map
+  /// for its whole life, while a writer may go on committing beside it (the writer keeps the
+  /// files of that commit until every reader has closed: a shared lock on `iwlomap_map.readers`,
+  /// which it creates, empty, when missing and it can). Nothing else in the directory is created,
+  /// removed or written, so a map can be read on a read-only file system too. Every method that
   /// would change the map (updates, scans, parameters, hit accumulation, set_log_odds, clear)
   /// throws std::logic_error; flush() does nothing. Throws StorageError when there is no
   /// map in \p directory or it is damaged.
@@ -182,20 +193,27 @@ class OutofcoreTileMapper final : public BackendBase {
   /// Known voxels of the whole map, resident or on disk (kept as a running count: no I/O).
   [[nodiscard]] size_t get_num_nodes() const override;
   [[nodiscard]] size_t get_num_skipped_points() const override;
-  /// Forgets every voxel: drops the resident tiles, deletes the map's tile files (files in the
-  /// directory that are not this map's tiles are left alone) and keeps the metadata and parameters.
+  /// Forgets every voxel: a commit of an empty map (unflushed changes are dropped either way; on
+  /// failure the map keeps its last commit). The map's tile files are removed as a commit's retired
+  /// files are; files in the directory that are not this map's tiles are left alone. The
+  /// parameters stay.
   void clear() override;
   [[nodiscard]] std::string get_backend_type() const override { return "Disk"; }
 
-  /// Makes every change durable: dirty resident tiles and staged tiles are written to their tile
-  /// files (see the class comment). All of them are attempted; the first error is thrown after.
+  /// Makes every change durable in one commit (see the class comment): dirty resident tiles,
+  /// staged tiles and the parameters. All or nothing: on failure it throws and the map on disk is
+  /// the previous commit's; the changes stay in the mapper for another flush() or a rollback().
   void flush() override;
+  /// Gives up every change since the last commit (or since opening): resident tiles are dropped,
+  /// staged images forgotten, and the parameters and hit-statistics setting are the committed ones
+  /// again; nothing on disk changes. Read-only: does nothing.
+  void rollback();
   /// Loads the tiles on disk that intersect the box [min_bound, max_bound] (metres), in (x, y, z)
   /// order of tile coordinates, at most cache_tiles of them. Throws std::invalid_argument for a
   /// non-finite bound or min > max on an axis.
   void preload_region(const Eigen::Vector3d& min_bound, const Eigen::Vector3d& max_bound) override;
-  /// Bytes of the map's files on disk: tile files, staging file and metadata (resident dirty tiles
-  /// not yet written are not counted).
+  /// Bytes of the map's files on disk: committed tile files, staging file, manifest and metadata
+  /// (resident dirty tiles not yet written and retired files not yet removed are not counted).
   [[nodiscard]] size_t get_disk_usage() const override;
   /// Frees the scratch buffers and the empty blocks of resident tiles; returns the voxel slots
   /// freed (known voxels are never removed).
@@ -219,7 +237,8 @@ class OutofcoreTileMapper final : public BackendBase {
   /// Largest number of tiles resident at once since construction (or the last clear()).
   [[nodiscard]] size_t get_peak_resident_tiles() const;
 
-  /// Flushes, then copies the map (metadata and tile files) to \p directory, created when
+  /// Flushes, then copies the map (metadata, manifest and the committed tile files) to
+  /// \p directory, created when
   /// missing; a directory that already holds a map is refused (StorageError kIo naming it). The
   /// copy is an independent map with the same contents: open it with another mapper.
   void copy_to(const std::string& directory);

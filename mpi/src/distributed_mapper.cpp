@@ -528,7 +528,7 @@ void DistributedMapper::flush() {
   std::string names;
   agree(comm_, rank_, attempt([&] {
           local_->flush();
-          for (const std::string& t : list_tile_files(rank_directory(options_.directory, rank_))) names += t + "\n";
+          for (const std::string& t : committed_tile_files(rank_directory(options_.directory, rank_))) names += t + "\n";
         }));
   std::vector<std::uint64_t> lengths;  // where each rank's list ends
   const std::vector<char> all =

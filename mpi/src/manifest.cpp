@@ -5,6 +5,7 @@
 
 #include "backends/disk/file_io.h"
 #include "backends/disk/map_directory.h"
+#include "backends/disk/map_manifest.h"
 #include "iwlomap/outofcore_tile_mapper.h"
 
 #include <algorithm>
@@ -21,7 +22,6 @@ namespace fs = std::filesystem;
 namespace {
 
 constexpr const char* kFirstLine = "iwlomap distributed map 1";
-constexpr const char* kMetaName = "iwlomap_map.meta";
 
 std::string hex(double v) {
   char buf[64];
@@ -54,28 +54,34 @@ void prepare_target(const fs::path& target) {
   if (ec) throw StorageError(StorageError::Kind::kIo, target.string(), "cannot create " + target.string() + ": " + ec.message());
 }
 
-// Copies the metadata file of \p shard and its tiles \p tiles into \p target, durably.
-void copy_shard(const fs::path& shard, const std::vector<std::string>& tiles, const fs::path& target) {
-  // Tiles first, the metadata last: a directory without metadata is not a map, so an interrupted
-  // conversion is never mistaken for a complete one.
-  for (const std::string& t : tiles) link_or_copy(shard / t, target / t);
-  const std::vector<std::uint8_t> meta = detail::read_file((shard / kMetaName).string());
-  detail::write_file_durably((target / (std::string(kMetaName) + ".tmp")).string(), (target / kMetaName).string(), meta);
+// Makes \p target a Disk map of the tiles \p tiles of the commit \p from, whose files are in
+// \p source (hard links where possible), durably, with the metadata \p meta. Tiles first, then
+// their manifest, the metadata last: a directory without metadata is not a map, so an interrupted
+// conversion is never mistaken for a complete one.
+void assemble_map(const detail::MapManifest& from, const std::vector<detail::ManifestTile>& tiles,
+                  const std::vector<fs::path>& source, const detail::MapMeta& meta, const fs::path& target) {
+  for (std::size_t i = 0; i < tiles.size(); ++i) {
+    const std::string name = detail::tile_file_name(tiles[i].key, tiles[i].generation);
+    link_or_copy(source[i] / name, target / name);
+  }
+  detail::MapManifest m;
+  m.commit = from.commit;
+  m.state = from.state;
+  m.tiles = tiles;
+  std::sort(m.tiles.begin(), m.tiles.end(),
+            [](const detail::ManifestTile& a, const detail::ManifestTile& b) { return a.key < b.key; });
+  for (const detail::ManifestTile& t : m.tiles) m.commit = std::max(m.commit, t.generation);
   detail::sync_directory(target.string());
+  detail::write_manifest_file(target.string(), m);
+  detail::MapDirectory::write_meta_file(target.string(), meta);
 }
 
 }  // namespace
 
-std::vector<std::string> list_tile_files(const std::string& directory) {
+std::vector<std::string> committed_tile_files(const std::string& directory) {
   std::vector<std::string> names;
-  std::error_code ec;
-  for (fs::directory_iterator it(directory, ec), end; !ec && it != end; it.increment(ec)) {
-    const std::string name = it->path().filename().string();
-    VoxelKey t;
-    if (detail::parse_tile_file_name(name, t)) names.push_back(name);
-  }
-  if (ec) throw StorageError(StorageError::Kind::kIo, directory, "cannot list " + directory + ": " + ec.message());
-  std::sort(names.begin(), names.end());
+  for (const detail::ManifestTile& t : detail::read_committed_manifest(directory).tiles)
+    names.push_back(detail::tile_file_name(t.key, t.generation));
   return names;
 }
 
@@ -131,7 +137,8 @@ DistributedManifest read_manifest(const std::string& directory) {
     std::vector<std::string> tiles;
     for (long i = 0; i < count; ++i) {
       VoxelKey t;
-      if (!std::getline(in, line) || !detail::parse_tile_file_name(line, t))
+      std::uint64_t generation = 0;
+      if (!std::getline(in, line) || !detail::parse_tile_file_name(line, t, generation))
         bad_manifest(path, "rank " + std::to_string(r) + " lists " + std::to_string(count) + " tiles, tile " +
                                std::to_string(i) + " is missing or not a tile file name");
       tiles.push_back(line);
@@ -142,19 +149,32 @@ DistributedManifest read_manifest(const std::string& directory) {
 }
 
 void merge_distributed_map(const std::string& directory, const std::string& target) {
-  const DistributedManifest m = read_manifest(directory);
+  const DistributedManifest dm = read_manifest(directory);
   prepare_target(target);
-  // Tiles of all ranks first, then rank 0's metadata (all ranks' are alike): see copy_shard().
-  for (int r = 1; r < m.ranks; ++r) {
+  // Each shard's own last commit decides which files hold its tiles (the distributed manifest
+  // lists them as of its last flush). The ranks own disjoint tiles.
+  detail::MapManifest first;
+  std::vector<detail::ManifestTile> tiles;
+  std::vector<fs::path> sources;
+  for (int r = 0; r < dm.ranks; ++r) {
     const fs::path shard = fs::path(directory) / ("rank-" + std::to_string(r));
-    for (const std::string& t : m.tiles[static_cast<std::size_t>(r)]) link_or_copy(shard / t, fs::path(target) / t);
+    const detail::MapManifest m = detail::read_committed_manifest(shard.string());
+    if (r == 0) first = m;
+    first.commit = std::max(first.commit, m.commit);
+    for (const detail::ManifestTile& t : m.tiles) {
+      tiles.push_back(t);
+      sources.push_back(shard);
+    }
   }
-  copy_shard(fs::path(directory) / "rank-0", m.tiles[0], target);
+  const fs::path shard0 = fs::path(directory) / "rank-0";
+  assemble_map(first, tiles, sources, detail::MapDirectory::read_meta(shard0.string()), target);
 }
 
 void split_map(const std::string& directory, const std::string& target, int ranks) {
   if (ranks < 1) throw std::invalid_argument("iwlomap::mpi: split_map: ranks must be >= 1, got " + std::to_string(ranks));
   const DiskMapInfo info = OutofcoreTileMapper::read_map_info(directory);
+  const detail::MapMeta meta = detail::MapDirectory::read_meta(directory);
+  const detail::MapManifest source = detail::read_committed_manifest(directory);
   prepare_target(target);
   DistributedManifest m;
   m.ranks = ranks;
@@ -162,15 +182,17 @@ void split_map(const std::string& directory, const std::string& target, int rank
   m.tile_size = info.tile_size;
   m.tile_voxels = static_cast<std::uint32_t>(info.tile_voxels);
   m.tiles.resize(static_cast<std::size_t>(ranks));
-  for (const std::string& name : list_tile_files(directory)) {
-    VoxelKey t;
-    (void)detail::parse_tile_file_name(name, t);
-    m.tiles[static_cast<std::size_t>(owner_of_tile(t, ranks))].push_back(name);
+  std::vector<std::vector<detail::ManifestTile>> owned(static_cast<std::size_t>(ranks));
+  for (const detail::ManifestTile& t : source.tiles) {
+    const std::size_t r = static_cast<std::size_t>(owner_of_tile(t.key, ranks));
+    owned[r].push_back(t);
+    m.tiles[r].push_back(detail::tile_file_name(t.key, t.generation));
   }
   for (int r = 0; r < ranks; ++r) {
     const fs::path shard = fs::path(target) / ("rank-" + std::to_string(r));
     prepare_target(shard);
-    copy_shard(directory, m.tiles[static_cast<std::size_t>(r)], shard);
+    const std::vector<detail::ManifestTile>& mine = owned[static_cast<std::size_t>(r)];
+    assemble_map(source, mine, std::vector<fs::path>(mine.size(), fs::path(directory)), meta, shard);
   }
   write_manifest(target, m);
 }

@@ -23,7 +23,8 @@ namespace iwlomap::mpi {
 /// Throws StorageError (kIo) naming the file.
 void write_manifest(const std::string& directory, const DistributedManifest& m);
 
-/// The tile files in the Disk map directory \p directory, sorted by name.
-[[nodiscard]] std::vector<std::string> list_tile_files(const std::string& directory);
+/// The tile files of the last commit of the Disk map in \p directory (no writer may be changing
+/// it), sorted by tile.
+[[nodiscard]] std::vector<std::string> committed_tile_files(const std::string& directory);
 
 }  // namespace iwlomap::mpi

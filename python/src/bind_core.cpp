@@ -440,7 +440,8 @@ void bind_backend(py::module_& m) {
             py::gil_scoped_release release;
             return std::make_shared<OutofcoreTileMapper>(OutofcoreTileMapper::open_read_only(dir, cache_tiles));
           },
-          py::arg("directory"), py::arg("cache_tiles") = 16, "Reads a map without a lock and without writing.")
+          py::arg("directory"), py::arg("cache_tiles") = 16,
+          "Reads the map's last commit, writing nothing; a writer may go on committing beside it.")
       .def_static(
           "read_map_info", [](const py::handle& directory) { return OutofcoreTileMapper::read_map_info(path_from(directory)); },
           py::arg("directory"))
@@ -459,9 +460,18 @@ void bind_backend(py::module_& m) {
             unlocked(map, [&] { map.copy_to(dir); });
           },
           py::arg("directory"))
+      .def(
+          "rollback", [](OutofcoreTileMapper& map) { unlocked(map, [&] { map.rollback(); }); },
+          "Gives up every change since the last flush(); nothing on disk changes.")
       .def("__enter__", [](const std::shared_ptr<OutofcoreTileMapper>& map) { return map; })
-      .def("__exit__", [](OutofcoreTileMapper& map, const py::object&, const py::object&, const py::object&) {
-        if (!map.is_read_only()) unlocked(map, [&] { map.flush(); });
+      // A block that ends normally commits; one that raises gives its changes up, so that a failed
+      // run leaves the map on disk as it was.
+      .def("__exit__", [](OutofcoreTileMapper& map, const py::object& type, const py::object&, const py::object&) {
+        if (map.is_read_only()) return false;
+        if (type.is_none())
+          unlocked(map, [&] { map.flush(); });
+        else
+          unlocked(map, [&] { map.rollback(); });
         return false;
       });
 

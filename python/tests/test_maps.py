@@ -227,6 +227,27 @@ def test_disk_map_persists_and_opens_read_only(tmp_path, scan):
     assert np.array_equal(voxel_table(iwlomap.OutofcoreTileMapper.open_read_only(tmp_path / "copy")), table)
 
 
+def test_disk_map_commits_at_flush_and_rolls_back_a_failed_block(tmp_path, scan):
+    origin, points, intensities = scan
+    d = tmp_path / "tiles"
+    with iwlomap.OutofcoreTileMapper(d, 0.2, 6.4, 2) as m:
+        m.set_params(LIDAR)
+        m.insert_scan(origin, points, intensities)
+    del m
+    committed = voxel_table(iwlomap.OutofcoreTileMapper.open_read_only(d))
+    m = iwlomap.OutofcoreTileMapper(d, 0.2, 6.4, 2)
+    m.insert_scan(origin + 1.0, points + 1.0, intensities)
+    m.rollback()
+    assert np.array_equal(voxel_table(m), committed)
+    del m
+    with pytest.raises(ZeroDivisionError):
+        with iwlomap.OutofcoreTileMapper(d, 0.2, 6.4, 2) as m:
+            m.insert_scan(origin + 1.0, points + 1.0, intensities)
+            1 / 0
+    del m
+    assert np.array_equal(voxel_table(iwlomap.OutofcoreTileMapper.open_read_only(d)), committed)
+
+
 def test_colour_means():
     c = iwlomap.VoxelColorMeans(0.1)
     pts = np.array([[0.01, 0.02, 0.03], [0.05, 0.05, 0.05], [0.5, 0.5, 0.5]])

@@ -129,6 +129,7 @@ int run_map(const std::vector<std::string>& argv) {
   const MapOutputs extra = map_outputs_from(args, files);
 
   const MapSetup setup = map_setup_from(args);
+  MapCommit commit(setup.map);
   const bool mean_positions = args.flag("--mean-positions");
   if (mean_positions) setup.map->set_hit_accumulation(true);
   const bool keep_colors = !args.flag("--no-colors");
@@ -286,8 +287,8 @@ int run_map(const std::vector<std::string>& argv) {
   if (const std::size_t skipped = setup.map->get_num_skipped_points(); skipped > 0)
     warn_skipped_points("map", skipped, points, setup.map->get_resolution(), setup.ray_casting);
   // A disk map is complete and durable before any output describes it: a failing final flush
-  // fails the run before an output is written.
-  setup.map->flush();
+  // fails the run before an output is written (and leaves the map as it was).
+  commit.commit();
   show_status(!quiet, "writing the outputs");
   const double threshold = setup.params.occupied_threshold;
   const Eigen::MatrixXd voxels =

@@ -205,6 +205,7 @@ int run_sonar(const std::vector<std::string>& argv) {
   // --intensity-threshold and the other IWLO options apply over the preset in map_setup_from().
   const SonarPreset preset = sonar_preset();
   const MapSetup setup = use_preset ? map_setup_from(args, preset.map) : map_setup_from(args);
+  MapCommit commit(setup.map);
   SonarProjectorParams params = use_preset ? preset.projector : SonarProjectorParams{};
   params.intensity_threshold = setup.params.intensity_threshold;
   params.free_sample_stride = args.number("--stride", params.free_sample_stride);
@@ -336,6 +337,8 @@ int run_sonar(const std::vector<std::string>& argv) {
                            std::to_string(sum.closures_rejected_by_optimizer) + " rejected by the optimizer";
   }
 #endif
+  // As `map`: the disk map's one commit, before any output describes it.
+  commit.commit();
   if (poses_out) {
     files.write(*poses_out, [&](const std::string& file) {
       std::ofstream out(file);

@@ -214,4 +214,14 @@ void IntensityWarning::check(const std::string& file, const Eigen::VectorXd& int
   warned_ = true;
 }
 
+MapCommit::~MapCommit() {
+  if (committed_) return;
+  if (auto* disk = dynamic_cast<OutofcoreTileMapper*>(map_.get())) disk->rollback();
+}
+
+void MapCommit::commit() {
+  map_->flush();
+  committed_ = true;
+}
+
 }  // namespace iwlomap::tool

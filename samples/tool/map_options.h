@@ -52,6 +52,23 @@ struct MapSetup {
 [[nodiscard]] MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base = std::nullopt,
                                       bool open_map = true);
 
+/// A run's map commit: commit() flushes the map (a disk map's one commit of the run); a run that
+/// leaves before it (an error, a signal's exception) rolls a disk map back, so that a failed run
+/// leaves the map on disk exactly as it was. Declare it right after the map, before anything that
+/// holds the map in another thread, so that those stop first.
+class MapCommit {
+ public:
+  explicit MapCommit(std::shared_ptr<IMapperBackend> map) : map_(std::move(map)) {}
+  ~MapCommit();
+  MapCommit(const MapCommit&) = delete;
+  MapCommit& operator=(const MapCommit&) = delete;
+  void commit();
+
+ private:
+  std::shared_ptr<IMapperBackend> map_;
+  bool committed_ = false;
+};
+
 /// Warns on stderr that \p skipped of \p points points were left out of the map, and why: not
 /// finite, or (with ray casting) farther from the sensor origin than the longest ray.
 void warn_skipped_points(const char* command, std::size_t skipped, std::size_t points, double resolution,

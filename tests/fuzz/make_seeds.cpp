@@ -3,6 +3,7 @@
 // mutates from (a random start rarely gets past a format's first checks).
 // usage: make_seeds DIR
 
+#include "backends/disk/map_manifest.h"
 #include "backends/disk/tile_file.h"
 #include "integrate/hit_accumulator.h"
 #include "storage/block_grid.h"
@@ -83,6 +84,19 @@ void put_u16(std::vector<std::uint8_t>& b, std::size_t at, std::uint16_t v) { st
 void put_u32(std::vector<std::uint8_t>& b, std::size_t at, std::uint32_t v) { std::memcpy(&b[at], &v, 4); }
 void put_f64(std::vector<std::uint8_t>& b, std::size_t at, double v) { std::memcpy(&b[at], &v, 8); }
 
+// fuzz_manifest: an empty map's, and one of three tiles with a retired file and statistics on.
+void manifest_seeds(const fs::path& dir) {
+  d::MapManifest m;
+  write(dir / "empty.manifest", d::encode_manifest(m));
+  m.commit = 7;
+  m.state.hit_statistics = true;
+  m.state.hit_epoch = 2;
+  m.state.params.occupied_threshold = 0.6;
+  m.tiles = {{{-1, 0, 2}, 3, 400, 12, 0x1234abcdu}, {{0, 0, 0}, 7, 980, 51, 0x0badf00du}, {{5, -2, 1}, 0, 81, 1, 7u}};
+  m.retired = {{{0, 0, 0}, 4}};
+  write(dir / "tiles.manifest", d::encode_manifest(m));
+}
+
 // fuzz_oculus: one SimplePingResult v1 message of 16 beams x 40 range bins, with and without
 // per-row gains.
 std::vector<std::uint8_t> oculus_ping(bool row_gains) {
@@ -132,9 +146,10 @@ int main(int argc, char** argv) {
   }
   try {
     const fs::path root(argv[1]);
-    for (const char* t : {"fuzz_cloud", "fuzz_tile", "fuzz_oculus"}) fs::create_directories(root / t);
+    for (const char* t : {"fuzz_cloud", "fuzz_tile", "fuzz_manifest", "fuzz_oculus"}) fs::create_directories(root / t);
     cloud_seeds(root / "fuzz_cloud");
     tile_seeds(root / "fuzz_tile");
+    manifest_seeds(root / "fuzz_manifest");
     write(root / "fuzz_oculus" / "ping.raw", oculus_ping(false));
     write(root / "fuzz_oculus" / "ping_gains.raw", oculus_ping(true));
     std::vector<std::uint8_t> two = oculus_ping(false);

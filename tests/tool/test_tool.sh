@@ -129,6 +129,20 @@ if has_layer octomap; then
   check info_bt 0 "$TOOL" info "$WORK/exported.bt"
   expect info_bt_reports grep -q "OctoMap map, .* known voxels at 0.2 m" "$WORK/info_bt.out"
 fi
+# A run that fails leaves a disk map exactly as it was: one tile of a many-tile map gets a flipped
+# payload byte; the next run reads (and stages) other tiles first, then fails naming that tile,
+# and every file of the map is byte for byte what it was.
+check map_disk_many_tiles 0 "$TOOL" map "$WORK/scan.pcd" --backend disk --tiles "$WORK/tiles_many" --resolution 0.2 \
+  --tile-size 1.6 --cache-tiles 4 --sensor lidar
+expect many_tiles bash -c "test \$(ls '$WORK/tiles_many' | grep -c '^tile_') -ge 40"
+victim=$(ls "$WORK/tiles_many" | grep '^tile_' | sort | sed -n 20p)
+python3 -c "import sys; p=sys.argv[1]; b=bytearray(open(p,'rb').read()); b[-3]^=0x10; open(p,'wb').write(b)" \
+  "$WORK/tiles_many/$victim"
+(cd "$WORK/tiles_many" && sha256sum -- * | sort) >"$WORK/tiles_many_before.txt"
+check map_disk_damaged_tile 1 "$TOOL" map "$WORK/scan.pcd" --backend disk --tiles "$WORK/tiles_many" --sensor lidar
+expect damaged_tile_named grep -q "$victim.*checksum" "$WORK/map_disk_damaged_tile.err"
+(cd "$WORK/tiles_many" && sha256sum -- * | sort) >"$WORK/tiles_many_after.txt"
+expect failed_run_changes_no_file cmp -s "$WORK/tiles_many_before.txt" "$WORK/tiles_many_after.txt"
 check pyramid_tiles 0 "$TOOL" pyramid "$WORK/tiles" --levels 2 -o "$WORK/pyramid_tiles"
 expect pyramid_tiles_png test -s "$WORK/pyramid_tiles/level_1.png"
 if has_layer viewer && [ -n "${DISPLAY:-}" ]; then

@@ -39,44 +39,39 @@
 namespace iwlomap {
 
 struct OutofcoreTileMapper::Impl {
-  // Opening: the directory (lock, metadata, tile list), then every tile header; what interrupted
-  // writes left behind is removed only once every tile checked out, so an open that fails changes
-  // no file.
+  // Opening: the directory (lock, metadata, tile list), then the manifest and the tile files it
+  // names; what interrupted writes left behind is removed only once every tile checked out, so an
+  // open that fails changes no file.
   Impl(const std::string& directory, double res, double tile, std::size_t cache_tiles, bool read_only = false)
       : resolution(res),
         tile_voxels(detail::tile_voxels_for(res, tile)),
         tile_size(static_cast<double>(tile_voxels) * res),
         dir(directory, res, tile, tile_voxels, read_only),
-        store(dir, res, tile_voxels),
+        store(dir, res, tile_voxels, detail::MapState{dir.meta().params, dir.meta().hit_statistics, dir.meta().hit_epoch}),
         cache(store, cache_tiles, res, tile_voxels, total_known, hit_settings),
         routing(tile_voxels),
-        updater(dir.meta().params) {
+        updater(store.committed_state().params) {
     total_known = store.known();
-    hit_settings = {dir.meta().hit_statistics, dir.meta().hit_epoch};
+    hit_settings = {store.committed_state().hit_statistics, store.committed_state().hit_epoch};
     dir.remove_leftovers();
+    store.remove_retired();
   }
 
-  // ---- what the metadata records ----
+  // ---- what the manifest records besides the tiles ----
 
-  // The parameters belong to the map: validated, written to the metadata, then used.
-  void set_params(const IwloParams& p) {
-    detail::Updater next(p);
-    detail::MapMeta m = dir.meta();
-    m.params = p;
-    dir.write_meta(m);
-    updater = std::move(next);
-  }
+  // The parameters belong to the map: validated, used at once, recorded by the next commit.
+  void set_params(const IwloParams& p) { updater = detail::Updater(p); }
 
   void set_hit_accumulation(bool enabled) {
     if (enabled == hit_settings.enabled) return;
-    detail::MapMeta m = dir.meta();
-    m.hit_statistics = enabled;
     // A new epoch each time it is turned on: statistics still in tiles from before are void.
-    if (enabled) ++m.hit_epoch;
-    dir.write_meta(m);
-    hit_settings = {enabled, m.hit_epoch};
+    hit_settings = {enabled, enabled ? hit_settings.epoch + 1 : hit_settings.epoch};
     for (const auto& t : cache.resident())
       t->hits = enabled ? std::make_unique<detail::HitAccumulator>(resolution) : nullptr;
+  }
+
+  [[nodiscard]] detail::MapState current_state() const {
+    return {updater.params(), hit_settings.enabled, hit_settings.epoch};
   }
 
   // Read-only maps refuse every change (open_read_only()): \p what names the call.
@@ -360,49 +355,66 @@ struct OutofcoreTileMapper::Impl {
     }
   }
 
-  // ---- flush and clear ----
+  // ---- commits ----
 
-  // Writes every tile whose newest state is not in its tile file: dirty resident tiles from RAM,
-  // staged tiles from the staging file. Every tile is attempted; the first error is rethrown at the
-  // end, and a tile that failed keeps its newest state (dirty in RAM, or staged) for a later flush.
+  // One commit (tile_store.h): every tile whose newest state is not in its committed file (dirty
+  // resident tiles from RAM, staged tiles from the staging file) and the parameters. All or
+  // nothing: on failure the map stays as the last commit left it, and every tile keeps its newest
+  // state (dirty in RAM, or staged) for a later flush.
   void flush() {
     if (dir.read_only()) return;  // nothing can be dirty
-    std::exception_ptr first_error;
     std::vector<VoxelKey> keys;
     for (const auto& [k, image] : store.images())
       if (image.staged) keys.push_back(k);
     for (const auto& t : cache.resident())
       if (t->dirty && std::find(keys.begin(), keys.end(), t->key) == keys.end()) keys.push_back(t->key);
+    const detail::MapState state = current_state();
+    if (keys.empty() && detail::same_state(state, store.committed_state())) return;
     std::sort(keys.begin(), keys.end());
+    std::vector<detail::Tile*> written;
     std::unique_ptr<detail::DenseBlock> check_block;
-    for (const VoxelKey& k : keys) {
-      try {
+    try {
+      for (const VoxelKey& k : keys) {
         detail::Tile* t = cache.find(k);
         if (t != nullptr && t->dirty) {
           const std::uint64_t known = cache.encode(*t, io_buffer);
-          store.commit(k, io_buffer, static_cast<std::size_t>(known));
-          t->dirty = false;
+          store.write(k, io_buffer, static_cast<std::size_t>(known));
+          written.push_back(t);
         } else {
           if (!check_block) check_block = std::make_unique<detail::DenseBlock>();
-          store.commit_staged(k, io_buffer, *check_block);
+          store.write_staged(k, io_buffer, *check_block);
         }
-      } catch (...) {
-        if (!first_error) first_error = std::current_exception();
       }
+      store.commit(state);
+    } catch (...) {
+      store.abort();
+      throw;
     }
-    store.finish_commits();
-    if (first_error) std::rethrow_exception(first_error);
+    for (detail::Tile* t : written) t->dirty = false;
   }
 
+  // Back to the last commit: resident tiles, staged images and parameters as it left them.
+  void rollback() {
+    cache.clear();
+    store.discard_staged();
+    total_known = store.known();
+    const detail::MapState& committed = store.committed_state();
+    updater = detail::Updater(committed.params);
+    hit_settings = {committed.hit_statistics, committed.hit_epoch};
+  }
+
+  // A commit of an empty map (the parameters stay); unflushed changes go either way.
   void clear() {
     cache.clear();
     skipped = 0;
     scratch.release();
     detail::free_memory(batch);
     detail::free_memory(io_buffer);
+    store.discard_staged();
     try {
-      store.clear();
+      store.commit(current_state(), true);
     } catch (...) {
+      store.abort();
       total_known = store.known();
       throw;
     }

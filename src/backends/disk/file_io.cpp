@@ -51,7 +51,7 @@ int open_retry(const char* path, int flags, mode_t mode = 0) {
 void throw_corrupt(const std::string& path, const std::string& what) {
   throw StorageError(StorageError::Kind::kCorrupt, path,
                      "iwlomap: tile file " + path + " is corrupt: " + what +
-                         " (the file is left as it is; move it away to use the rest of the map)");
+                         " (the file is left as it is)");
 }
 
 std::vector<std::uint8_t> read_file_prefix(const std::string& path, std::size_t max_bytes, std::uint64_t& file_size) {

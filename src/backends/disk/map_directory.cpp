@@ -2,6 +2,7 @@
 #include "backends/disk/map_directory.h"
 
 #include "backends/disk/file_io.h"
+#include "backends/disk/map_manifest.h"
 #include "backends/disk/tile_file.h"
 #include "model/checks.h"
 #include "storage/block_grid.h"
@@ -29,6 +30,7 @@ namespace fs = std::filesystem;
 
 constexpr const char* kMetaName = "iwlomap_map.meta";
 constexpr const char* kLockName = "iwlomap_map.lock";
+constexpr const char* kReadersName = "iwlomap_map.readers";
 constexpr const char* kMetaFirstLine = "iwlomap tile map";
 constexpr const char* kTilePrefix = "tile_";
 constexpr const char* kTileSuffix = ".iwt";
@@ -53,11 +55,9 @@ std::vector<std::uint8_t> encode_meta(const MapMeta& m) {
     << "tile_size " << hexfloat(m.tile_size) << "\n"
     << "tile_voxels " << m.tile_voxels << "\n"
     << "iwlo_params";
-  const IwloParams& p = m.params;
-  for (const double v : {p.sharpness, p.decay_rate, p.min_alpha, p.L_min, p.L_max, p.log_odds_occupied, p.log_odds_free,
-                         p.intensity_threshold, p.intensity_max, p.adaptive_enabled ? 1.0 : 0.0, p.adaptive_threshold,
-                         p.adaptive_max_ratio, p.occupied_threshold})
-    s << " " << hexfloat(v);
+  double values[13];
+  params_to_array(m.params, values);
+  for (const double v : values) s << " " << hexfloat(v);
   s << "\n"
     << "hit_statistics " << (m.hit_statistics ? 1 : 0) << "\n"
     << "hit_epoch " << m.hit_epoch << "\n"
@@ -76,13 +76,14 @@ std::vector<std::uint8_t> encode_meta(const MapMeta& m) {
 
 }  // namespace
 
-std::string tile_file_name(const VoxelKey& t) {
-  return kTilePrefix + std::to_string(t.x) + "_" + std::to_string(t.y) + "_" + std::to_string(t.z) + kTileSuffix;
+std::string tile_file_name(const VoxelKey& t, std::uint64_t generation) {
+  return kTilePrefix + std::to_string(t.x) + "_" + std::to_string(t.y) + "_" + std::to_string(t.z) +
+         (generation == 0 ? std::string() : ".g" + std::to_string(generation)) + kTileSuffix;
 }
 
 // Strict: only the exact names tile_file_name() produces, so no other file is ever taken for a
-// tile (or deleted by clear()).
-bool parse_tile_file_name(const std::string& name, VoxelKey& t) {
+// tile (or removed as a retired one).
+bool parse_tile_file_name(const std::string& name, VoxelKey& t, std::uint64_t& generation) {
   if (name.rfind(kTilePrefix, 0) != 0 || !ends_with(name, kTileSuffix)) return false;
   const std::string body = name.substr(5, name.size() - 5 - 4);
   long v[3];
@@ -100,9 +101,46 @@ bool parse_tile_file_name(const std::string& name, VoxelKey& t) {
       ++p;
     }
   }
+  std::uint64_t g = 0;
+  if (p[0] == '.' && p[1] == 'g') {
+    char* end = nullptr;
+    errno = 0;
+    const unsigned long long parsed = std::strtoull(p + 2, &end, 10);
+    if (end == p + 2 || errno != 0 || parsed == 0) return false;
+    g = parsed;
+    p = end;
+  }
   if (*p != '\0') return false;
   t = {static_cast<std::int32_t>(v[0]), static_cast<std::int32_t>(v[1]), static_cast<std::int32_t>(v[2])};
-  return tile_file_name(t) == name;
+  generation = g;
+  return tile_file_name(t, g) == name;
+}
+
+void params_to_array(const IwloParams& p, double (&v)[13]) {
+  const double values[13] = {p.sharpness,         p.decay_rate,        p.min_alpha,
+                             p.L_min,             p.L_max,             p.log_odds_occupied,
+                             p.log_odds_free,     p.intensity_threshold, p.intensity_max,
+                             p.adaptive_enabled ? 1.0 : 0.0, p.adaptive_threshold, p.adaptive_max_ratio,
+                             p.occupied_threshold};
+  std::copy(std::begin(values), std::end(values), std::begin(v));
+}
+
+IwloParams params_from_array(const double (&v)[13]) {
+  IwloParams p;
+  p.sharpness = v[0];
+  p.decay_rate = v[1];
+  p.min_alpha = v[2];
+  p.L_min = v[3];
+  p.L_max = v[4];
+  p.log_odds_occupied = v[5];
+  p.log_odds_free = v[6];
+  p.intensity_threshold = v[7];
+  p.intensity_max = v[8];
+  p.adaptive_enabled = v[9] != 0.0;
+  p.adaptive_threshold = v[10];
+  p.adaptive_max_ratio = v[11];
+  p.occupied_threshold = v[12];
+  return p;
 }
 
 std::uint32_t tile_voxels_for(double resolution, double tile_size) {
@@ -153,20 +191,7 @@ MapMeta parse_meta(const std::vector<std::uint8_t>& bytes, const std::string& pa
         q = end;
       }
       if (*q != '\0') throw_bad_meta(path, "iwlo_params '" + value + "' has more than 13 numbers");
-      IwloParams p;
-      p.sharpness = v[0];
-      p.decay_rate = v[1];
-      p.min_alpha = v[2];
-      p.L_min = v[3];
-      p.L_max = v[4];
-      p.log_odds_occupied = v[5];
-      p.log_odds_free = v[6];
-      p.intensity_threshold = v[7];
-      p.intensity_max = v[8];
-      p.adaptive_enabled = v[9] != 0.0;
-      p.adaptive_threshold = v[10];
-      p.adaptive_max_ratio = v[11];
-      p.occupied_threshold = v[12];
+      const IwloParams p = params_from_array(v);
       try {
         p.validate();
       } catch (const std::invalid_argument& e) {
@@ -183,10 +208,10 @@ MapMeta parse_meta(const std::vector<std::uint8_t>& bytes, const std::string& pa
     // Other keys are ignored: a later minor version may add informative ones.
   }
   if (!have_version) throw_bad_meta(path, "format_version is missing");
-  if (m.version > detail::kTileFormatVersion)
+  if (m.version > kMapFormatVersion)
     throw StorageError(StorageError::Kind::kNewerVersion, path,
                        "iwlomap: map metadata " + path + " has format version " + std::to_string(m.version) +
-                           ", newer than the version " + std::to_string(detail::kTileFormatVersion) +
+                           ", newer than the version " + std::to_string(kMapFormatVersion) +
                            " this build reads; open the map with a newer iwlomap");
   if (m.version == 0) throw_bad_meta(path, "format_version 0");
   if (!have_res || !have_size || !have_voxels) throw_bad_meta(path, "resolution, tile_size or tile_voxels is missing");
@@ -212,21 +237,25 @@ MapDirectory::MapDirectory(std::string directory, double resolution, double tile
                            (ec ? ec.message() : std::string(read_only ? "it is not a directory" : "it exists and is not a directory")));
   if (!read_only) lock();
   try {
+    // Before the listing and the manifest: the files of the commit a reader reads stay.
+    open_readers_lock();
     for (fs::directory_iterator it(dir_, ec), end; !ec && it != end; it.increment(ec)) {
       std::error_code type_ec;
       if (!it->is_regular_file(type_ec)) continue;  // a directory named like a tile is not ours
       const std::string name = it->path().filename().string();
       VoxelKey t;
-      if (parse_tile_file_name(name, t))
-        tile_names_.push_back(name);
+      std::uint64_t g = 0;
+      if (parse_tile_file_name(name, t, g))
+        tile_files_.push_back({name, t, g});
       else if ((ends_with(name, kTempSuffix) &&
-                (name == std::string(kMetaName) + kTempSuffix ||
-                 parse_tile_file_name(name.substr(0, name.size() - 4), t))) ||
+                (name == std::string(kMetaName) + kTempSuffix || name == std::string(kManifestName) + kTempSuffix ||
+                 parse_tile_file_name(name.substr(0, name.size() - 4), t, g))) ||
                name == kStagingName || name == std::string(kStagingName) + ".new")
         leftovers_.push_back(name);
     }
     if (ec) throw StorageError(StorageError::Kind::kIo, dir_, "iwlomap: cannot list map directory " + dir_ + ": " + ec.message());
-    std::sort(tile_names_.begin(), tile_names_.end());
+    std::sort(tile_files_.begin(), tile_files_.end(),
+              [](const ListedTile& a, const ListedTile& b) { return a.name < b.name; });
 
     const std::string meta_path = path_of(kMetaName);
     if (fs::exists(meta_path, ec)) {
@@ -246,9 +275,9 @@ MapDirectory::MapDirectory(std::string directory, double resolution, double tile
       throw StorageError(StorageError::Kind::kIo, meta_path,
                          "iwlomap: " + dir_ + " holds no iwlomap map (" + meta_path + " is missing)");
     } else {
-      if (!tile_names_.empty())
+      if (!tile_files_.empty())
         throw StorageError(StorageError::Kind::kCorrupt, meta_path,
-                           "iwlomap: " + dir_ + " holds tile files (" + tile_names_.front() +
+                           "iwlomap: " + dir_ + " holds tile files (" + tile_files_.front().name +
                                ", ...) but no map metadata " + meta_path + "; its resolution and tile size are unknown");
       MapMeta m;
       m.resolution = resolution;
@@ -258,25 +287,60 @@ MapDirectory::MapDirectory(std::string directory, double resolution, double tile
     }
   } catch (...) {
     if (lock_fd_ >= 0) ::close(lock_fd_);
+    if (readers_fd_ >= 0) ::close(readers_fd_);
     throw;
   }
 }
 
 void MapDirectory::write_meta(const MapMeta& meta) {
   if (read_only_) throw std::logic_error("iwlomap: the map directory " + dir_ + " is open read-only");
+  write_meta_file(dir_, meta);
+  meta_ = meta;
+  meta_.version = kMapFormatVersion;
+  meta_bytes_ = encode_meta(meta_).size();
+}
+
+void MapDirectory::write_meta_file(const std::string& directory, const MapMeta& meta) {
   MapMeta m = meta;
-  // Version 2 once hit statistics have been on: tiles may hold them, which older builds cannot read.
-  m.version = m.hit_statistics || m.hit_epoch != 0 ? 2u : 1u;
-  const std::string meta_path = path_of(kMetaName);
-  const std::vector<std::uint8_t> bytes = encode_meta(m);
-  write_file_durably(meta_path + kTempSuffix, meta_path, bytes);
-  sync_directory(dir_);
-  meta_bytes_ = bytes.size();
-  meta_ = m;
+  m.version = kMapFormatVersion;
+  const std::string meta_path = (fs::path(directory) / kMetaName).string();
+  write_file_durably(meta_path + kTempSuffix, meta_path, encode_meta(m));
+  sync_directory(directory);
 }
 
 MapDirectory::~MapDirectory() {
   if (lock_fd_ >= 0) ::close(lock_fd_);
+  if (readers_fd_ >= 0) ::close(readers_fd_);
+}
+
+// A reader holds the lock shared for its lifetime, waiting while a writer removes retired files
+// (a moment). A writer keeps the descriptor to test for readers. A read-only open of a directory
+// where the file cannot be created (a read-only file system) goes without: no writer can run there.
+void MapDirectory::open_readers_lock() {
+  const std::string path = path_of(kReadersName);
+  readers_fd_ = ::open(path.c_str(), (read_only_ ? O_RDONLY : O_RDWR) | O_CREAT | O_CLOEXEC, 0644);
+  if (readers_fd_ < 0 && read_only_) readers_fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (readers_fd_ < 0) {
+    if (read_only_) return;
+    throw StorageError(StorageError::Kind::kIo, path, "iwlomap: cannot create lock file " + path + ": " + std::strerror(errno));
+  }
+  if (!read_only_) return;
+  int r;
+  do r = ::flock(readers_fd_, LOCK_SH);
+  while (r != 0 && errno == EINTR);
+  if (r != 0) throw StorageError(StorageError::Kind::kIo, path, "iwlomap: cannot lock " + path + ": " + std::strerror(errno));
+}
+
+bool MapDirectory::exclude_readers() noexcept {
+  if (read_only_ || readers_fd_ < 0) return false;
+  int r;
+  do r = ::flock(readers_fd_, LOCK_EX | LOCK_NB);
+  while (r != 0 && errno == EINTR);
+  return r == 0;
+}
+
+void MapDirectory::release_readers() noexcept {
+  if (readers_fd_ >= 0) (void)::flock(readers_fd_, LOCK_UN);
 }
 
 std::string MapDirectory::path_of(const std::string& name) const { return (fs::path(dir_) / name).string(); }

@@ -248,7 +248,8 @@ void OutofcoreTileMapper::preload_region(const Eigen::Vector3d& min_bound, const
 size_t OutofcoreTileMapper::get_disk_usage() const {
   const Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
-  return static_cast<size_t>(m.store.committed_bytes() + m.store.staging_bytes() + m.dir.meta_bytes());
+  return static_cast<size_t>(m.store.committed_bytes() + m.store.staging_bytes() + m.store.manifest_bytes() +
+                             m.dir.meta_bytes());
 }
 
 size_t OutofcoreTileMapper::prune() {
@@ -293,15 +294,25 @@ void OutofcoreTileMapper::copy_to(const std::string& directory) {
   if (fs::exists(fs::path(directory) / "iwlomap_map.meta", ec))
     throw StorageError(StorageError::Kind::kIo, directory,
                        "iwlomap: cannot copy the map to " + directory + ": it already holds a map");
-  // Tiles first, the metadata last: until it is there, the copy is not a map.
-  std::vector<std::string> names;
-  for (const VoxelKey& k : m.all_tiles()) names.push_back(detail::tile_file_name(k));
-  names.push_back("iwlomap_map.meta");
-  for (const std::string& name : names) {
+  // Tiles, then the manifest, the metadata last: until it is there, the copy is not a map.
+  const detail::MapManifest manifest = m.store.committed_manifest();
+  const auto copy = [&](const std::string& name, const std::vector<std::uint8_t>& bytes) {
     const std::string to = (fs::path(directory) / name).string();
-    detail::write_file_durably(to + detail::kTempSuffix, to, detail::read_file(m.dir.path_of(name)));
+    detail::write_file_durably(to + detail::kTempSuffix, to, bytes);
+  };
+  for (const detail::ManifestTile& t : manifest.tiles) {
+    const std::string name = detail::tile_file_name(t.key, t.generation);
+    copy(name, detail::read_file(m.dir.path_of(name)));
   }
+  if (m.store.manifest_bytes() != 0) copy(detail::kManifestName, detail::encode_manifest(manifest));
+  copy("iwlomap_map.meta", detail::read_file(m.dir.path_of("iwlomap_map.meta")));
   detail::sync_directory(directory);
+}
+
+void OutofcoreTileMapper::rollback() {
+  Impl& m = impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.rollback();
 }
 
 DiskMapInfo OutofcoreTileMapper::read_map_info(const std::string& directory) {

@@ -203,6 +203,7 @@ TileHeader parse_tile_header(const std::uint8_t* data, std::size_t available, st
   h.payload_crc = load_u32(data + 64);
   h.hit_record_count = load_u32(data + 68);
   h.hit_epoch = load_u32(data + 72);
+  h.header_crc = stored_crc;
   if (h.version == 1 && (h.hit_record_count != 0 || h.hit_epoch != 0))
     throw_corrupt(path, "the reserved header bytes 68..75 of a version-1 tile are not 0");
   if (h.resolution != resolution || h.tile_voxels != tile_voxels)

@@ -78,6 +78,7 @@ struct TileHeader {
   std::uint32_t payload_crc = 0;
   std::uint32_t hit_record_count = 0;
   std::uint32_t hit_epoch = 0;
+  std::uint32_t header_crc = 0;  // bytes 76..79: names this exact file in the map's manifest
 };
 
 /// Serialises the known voxels of \p grid, the blocks of tile \p tile, and the statistics in

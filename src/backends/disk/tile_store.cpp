@@ -3,12 +3,14 @@
 
 #include "backends/disk/file_io.h"
 
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <cerrno>
 #include <cstring>
-#include <exception>
+#include <filesystem>
+#include <unordered_set>
 #include <utility>
 
 namespace iwlomap::detail {
@@ -19,19 +21,92 @@ namespace {
 constexpr std::uint64_t kCompactMinBytes = std::uint64_t{1} << 20;
 }  // namespace
 
-TileStore::TileStore(MapDirectory& dir, double resolution, std::uint32_t tile_voxels)
-    : dir_(dir), resolution_(resolution), tile_voxels_(tile_voxels) {
-  for (const std::string& name : dir_.tile_names()) {
-    VoxelKey t;
-    (void)parse_tile_file_name(name, t);
-    const std::string path = dir_.path_of(name);
+TileStore::TileStore(MapDirectory& dir, double resolution, std::uint32_t tile_voxels, const MapState& fallback)
+    : dir_(dir), resolution_(resolution), tile_voxels_(tile_voxels), state_(fallback) {
+  const std::string manifest_path = dir_.path_of(kManifestName);
+  std::error_code ec;
+  if (std::filesystem::exists(manifest_path, ec))
+    open_manifest(manifest_path);
+  else
+    open_listed();
+}
+
+// A map with a manifest: every file it names must be there, with a sound header that matches the
+// manifest (the payload is checked when the tile is read); any other tile file must be one the
+// map itself left behind.
+void TileStore::open_manifest(const std::string& path) {
+  const std::vector<std::uint8_t> bytes = read_file(path);
+  const MapManifest m = decode_manifest(bytes, path);
+  manifest_bytes_ = bytes.size();
+  commit_ = m.commit;
+  state_ = m.state;
+  for (const ManifestTile& t : m.tiles) {
+    const std::string tile_path = dir_.tile_path(t.key, t.generation);
+    struct stat st {};
+    if (::stat(tile_path.c_str(), &st) != 0) {
+      const int err = errno;
+      if (err != ENOENT)
+        throw StorageError(StorageError::Kind::kIo, tile_path,
+                           "iwlomap: cannot read " + tile_path + ": " + std::strerror(err));
+      throw StorageError(StorageError::Kind::kCorrupt, tile_path,
+                         "iwlomap: tile file " + tile_path + " is missing: the map's manifest " + path +
+                             " names it (deleted or moved away?)");
+    }
+    if (!S_ISREG(st.st_mode))
+      throw StorageError(StorageError::Kind::kCorrupt, tile_path,
+                         "iwlomap: tile file " + tile_path + " is not a regular file (the map's manifest " + path +
+                             " names it)");
+    // The header too (a small read per tile): a damaged map fails here, before anything changes.
+    std::uint64_t size = 0;
+    const std::vector<std::uint8_t> head = read_file_prefix(tile_path, kTileHeaderBytes, size);
+    const TileHeader h = parse_tile_header(head.data(), head.size(), size, resolution_, tile_voxels_, t.key, tile_path);
+    if (size != t.bytes || h.header_crc != t.header_crc || h.known_voxels != t.known)
+      throw_corrupt(tile_path, "it is not the file the map's manifest " + path + " names (" + std::to_string(size) +
+                                   " bytes, header CRC-32 " + hex32(h.header_crc) + "; the manifest says " +
+                                   std::to_string(t.bytes) + " bytes, " + hex32(t.header_crc) +
+                                   "): replaced by another file?");
+    TileImage& image = images_[t.key];
+    image.committed = true;
+    image.generation = t.generation;
+    image.committed_bytes = t.bytes;
+    image.committed_known = image.known = static_cast<std::size_t>(t.known);
+    image.header_crc = t.header_crc;
+    committed_bytes_ += t.bytes;
+  }
+  std::unordered_set<std::string> retired_names;
+  for (const RetiredFile& r : m.retired) retired_names.insert(tile_file_name(r.key, r.generation));
+  for (const ListedTile& f : dir_.tile_files()) {
+    const TileImage* image = find(f.key);
+    if (image != nullptr && image->generation == f.generation) continue;
+    if (f.generation > commit_ || retired_names.count(f.name) != 0) {
+      retired_.push_back({f.key, f.generation});  // retired, or written by a commit that did not finish
+      continue;
+    }
+    const std::string file = dir_.path_of(f.name);
+    throw StorageError(StorageError::Kind::kCorrupt, file,
+                       "iwlomap: tile file " + file + " is not part of the map in " + dir_.path() +
+                           ": its manifest does not name it (copied in from another map?); move it out of the "
+                           "directory");
+  }
+}
+
+// A map written before manifests: its tile files are the map; files of a generation were written
+// by a first commit that did not finish.
+void TileStore::open_listed() {
+  for (const ListedTile& f : dir_.tile_files()) {
+    if (f.generation != 0) {
+      retired_.push_back({f.key, f.generation});
+      continue;
+    }
+    const std::string path = dir_.path_of(f.name);
     std::uint64_t size = 0;
     const std::vector<std::uint8_t> head = read_file_prefix(path, kTileHeaderBytes, size);
-    const TileHeader h = parse_tile_header(head.data(), head.size(), size, resolution_, tile_voxels_, t, path);
-    TileImage& image = images_[t];
+    const TileHeader h = parse_tile_header(head.data(), head.size(), size, resolution_, tile_voxels_, f.key, path);
+    TileImage& image = images_[f.key];
     image.committed = true;
     image.committed_bytes = size;
-    image.known = static_cast<std::size_t>(h.known_voxels);
+    image.committed_known = image.known = static_cast<std::size_t>(h.known_voxels);
+    image.header_crc = h.header_crc;
     committed_bytes_ += size;
   }
 }
@@ -51,16 +126,31 @@ std::size_t TileStore::known() const noexcept {
   return n;
 }
 
+MapManifest TileStore::committed_manifest() const {
+  MapManifest m;
+  m.commit = commit_;
+  m.state = state_;
+  for (const auto& [k, image] : images_)
+    if (image.committed)
+      m.tiles.push_back({k, image.generation, image.committed_bytes, image.committed_known, image.header_crc});
+  std::sort(m.tiles.begin(), m.tiles.end(), [](const ManifestTile& a, const ManifestTile& b) { return a.key < b.key; });
+  return m;
+}
+
 TileHeader TileStore::read(const VoxelKey& key, std::vector<std::uint8_t>& bytes, std::string& where) {
   const TileImage& image = images_.at(key);
   if (image.staged) {
     where = staging_path() + " (staged image of " + tile_file_name(key) + ")";
     read_at(staging_fd_, image.staged_offset, static_cast<std::size_t>(image.staged_bytes), where, bytes);
-  } else {
-    where = dir_.tile_path(key);
-    bytes = read_file(where);
+    return parse_tile_header(bytes.data(), bytes.size(), bytes.size(), resolution_, tile_voxels_, key, where);
   }
-  return parse_tile_header(bytes.data(), bytes.size(), bytes.size(), resolution_, tile_voxels_, key, where);
+  where = dir_.tile_path(key, image.generation);
+  bytes = read_file(where);
+  const TileHeader h = parse_tile_header(bytes.data(), bytes.size(), bytes.size(), resolution_, tile_voxels_, key, where);
+  if (h.header_crc != image.header_crc)
+    throw_corrupt(where, "it is not the file the map's last commit wrote (header CRC-32 " + hex32(h.header_crc) +
+                             ", recorded " + hex32(image.header_crc) + "): replaced by another file?");
+  return h;
 }
 
 void TileStore::unstage(TileImage& image) noexcept {
@@ -123,32 +213,109 @@ void TileStore::compact_staging() {
   staging_live_ = size;
 }
 
-void TileStore::commit(const VoxelKey& key, const std::vector<std::uint8_t>& encoded, std::size_t known) {
-  const std::string path = dir_.tile_path(key);
-  write_file_durably(path + kTempSuffix, path, encoded);
-  dir_sync_pending_ = true;
-  TileImage& image = images_[key];
-  committed_bytes_ -= image.committed ? image.committed_bytes : 0;
-  image.committed = true;
-  image.committed_bytes = encoded.size();
-  committed_bytes_ += image.committed_bytes;
-  image.known = known;
-  unstage(image);
+void TileStore::write(const VoxelKey& key, const std::vector<std::uint8_t>& encoded, std::size_t known) {
+  const std::uint64_t generation = commit_ + 1;
+  const std::string path = dir_.tile_path(key, generation);
+  // A leftover of that name (from a commit that did not finish) becomes this commit's file.
+  retired_.erase(std::remove_if(retired_.begin(), retired_.end(),
+                                [&](const RetiredFile& r) { return r.key == key && r.generation == generation; }),
+                 retired_.end());
+  write_temp_file(path, path, encoded, true);
+  written_.push_back({key, encoded.size(), known, load_u32(encoded.data() + kTileHeaderBytes - 4)});
 }
 
-void TileStore::commit_staged(const VoxelKey& key, std::vector<std::uint8_t>& image_buffer, DenseBlock& check_block) {
+void TileStore::write_staged(const VoxelKey& key, std::vector<std::uint8_t>& image_buffer, DenseBlock& check_block) {
   std::string where;
   const TileHeader h = read(key, image_buffer, where);
   decode_tile(image_buffer, h, tile_voxels_, where, check_block, [](const DenseBlock&) {});
-  commit(key, image_buffer, static_cast<std::size_t>(h.known_voxels));
+  write(key, image_buffer, static_cast<std::size_t>(h.known_voxels));
 }
 
-void TileStore::finish_commits() {
-  if (dir_sync_pending_) {
-    sync_directory(dir_.path());
-    dir_sync_pending_ = false;
+void TileStore::commit(const MapState& state, bool drop_all) {
+  if (!written_.empty()) sync_directory(dir_.path());  // the new files exist before a manifest names them
+  if (dir_.meta().version < kMapFormatVersion) {
+    // A map from before manifests: its metadata says so first, so that no older build opens it.
+    MapMeta meta = dir_.meta();
+    meta.params = state.params;
+    meta.hit_statistics = state.hit_statistics;
+    meta.hit_epoch = state.hit_epoch;
+    dir_.write_meta(meta);
+  }
+  const std::uint64_t generation = commit_ + 1;
+  MapManifest m;
+  m.commit = generation;
+  m.state = state;
+  m.retired = retired_;
+  std::unordered_set<VoxelKey, VoxelKeyHash> rewritten;
+  for (const Written& w : written_) rewritten.insert(w.key);
+  for (const auto& [k, image] : images_) {
+    if (!image.committed) continue;
+    if (drop_all || rewritten.count(k) != 0)
+      m.retired.push_back({k, image.generation});
+    else
+      m.tiles.push_back({k, image.generation, image.committed_bytes, image.committed_known, image.header_crc});
+  }
+  for (const Written& w : written_) m.tiles.push_back({w.key, generation, w.bytes, w.known, w.header_crc});
+  std::sort(m.tiles.begin(), m.tiles.end(), [](const ManifestTile& a, const ManifestTile& b) { return a.key < b.key; });
+  const std::vector<std::uint8_t> bytes = encode_manifest(m);
+  const std::string path = dir_.path_of(kManifestName);
+  write_temp_file(path + kTempSuffix, path, bytes, true);
+  commit_temp_file(path + kTempSuffix, path, true);  // the commit
+
+  commit_ = generation;
+  state_ = state;
+  manifest_bytes_ = bytes.size();
+  retired_ = std::move(m.retired);
+  if (drop_all) {
+    for (auto& [k, image] : images_) unstage(image);
+    images_.clear();
+    committed_bytes_ = 0;
+  }
+  for (const Written& w : written_) {
+    TileImage& image = images_[w.key];
+    committed_bytes_ -= image.committed ? image.committed_bytes : 0;
+    image.committed = true;
+    image.generation = generation;
+    image.committed_bytes = w.bytes;
+    image.committed_known = image.known = w.known;
+    image.header_crc = w.header_crc;
+    committed_bytes_ += w.bytes;
+    unstage(image);
+  }
+  written_.clear();
+  drop_staging_if_unused();
+  sync_directory(dir_.path());  // on failure the commit stands; the next one makes it durable
+  remove_retired();
+}
+
+void TileStore::abort() noexcept {
+  for (const Written& w : written_) ::unlink(dir_.tile_path(w.key, commit_ + 1).c_str());
+  written_.clear();
+}
+
+void TileStore::discard_staged() noexcept {
+  for (auto it = images_.begin(); it != images_.end();) {
+    TileImage& image = it->second;
+    unstage(image);
+    if (!image.committed) {
+      it = images_.erase(it);
+      continue;
+    }
+    image.known = image.committed_known;
+    ++it;
   }
   drop_staging_if_unused();
+}
+
+// Removes the files no commit names, unless a reader holds the map (it may be reading them): then
+// they wait for a later commit or open. A file that cannot be removed waits too.
+void TileStore::remove_retired() noexcept {
+  if (retired_.empty() || !dir_.exclude_readers()) return;
+  std::vector<RetiredFile> kept;
+  for (const RetiredFile& r : retired_)
+    if (::unlink(dir_.tile_path(r.key, r.generation).c_str()) != 0 && errno != ENOENT) kept.push_back(r);
+  dir_.release_readers();
+  retired_ = std::move(kept);
 }
 
 // Closes and removes the staging file once no image in it is needed.
@@ -158,45 +325,6 @@ void TileStore::drop_staging_if_unused() noexcept {
   staging_fd_ = -1;
   staging_size_ = 0;
   ::unlink(staging_path().c_str());  // a leftover is deleted by the next open anyway
-}
-
-void TileStore::clear() {
-  std::exception_ptr first_error;
-  for (auto it = images_.begin(); it != images_.end();) {
-    TileImage& image = it->second;
-    unstage(image);  // the staging file goes as a whole below
-    if (image.committed) {
-      try {
-        remove_file(dir_.tile_path(it->first));
-      } catch (...) {
-        if (!first_error) first_error = std::current_exception();
-        image.known = committed_known(it->first);
-        ++it;
-        continue;  // still on disk: it stays with its file's contents
-      }
-    }
-    it = images_.erase(it);
-  }
-  drop_staging_if_unused();
-  committed_bytes_ = 0;
-  for (const auto& [k, image] : images_) committed_bytes_ += image.committed_bytes;
-  sync_directory(dir_.path());
-  dir_sync_pending_ = false;
-  if (first_error) std::rethrow_exception(first_error);
-}
-
-// Known voxels of a committed file, from its header (0 when it cannot be read: the next read of
-// the tile reports the problem).
-std::size_t TileStore::committed_known(const VoxelKey& key) const {
-  try {
-    const std::string path = dir_.tile_path(key);
-    std::uint64_t size = 0;
-    const std::vector<std::uint8_t> head = read_file_prefix(path, kTileHeaderBytes, size);
-    return static_cast<std::size_t>(
-        parse_tile_header(head.data(), head.size(), size, resolution_, tile_voxels_, key, path).known_voxels);
-  } catch (const std::exception&) {
-    return 0;
-  }
 }
 
 }  // namespace iwlomap::detail

@@ -1,15 +1,19 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #pragma once
 
-// What the Disk backend holds on disk: for every tile that has been written, its committed tile
-// file and possibly a staged image, a newer complete state that an eviction appended to the
-// staging file (one file for all evicted tiles, not fsync'ed: appending costs no file creation,
-// which dominates on many file systems). Tile files change only when a tile is committed
-// (flush()): a temporary file, fsync, rename, and one directory fsync per flush, so a crash leaves
-// each tile file in its previous or its new state. A crash discards the staging file: the next
-// open deletes it.
+// What the Disk backend holds on disk: for every tile of the last commit, its tile file (named by
+// the manifest, map_manifest.h), and possibly a staged image, a newer complete state that an
+// eviction appended to the staging file (one file for all evicted tiles, not fsync'ed: appending
+// costs no file creation, which dominates on many file systems). The map changes on disk only
+// at a commit (flush()): the changed tiles are written to new files of the next generation
+// (fsync'ed), the directory is synced, then the manifest is replaced; that rename is the commit.
+// A failure before it removes the new files and leaves the map as it was; a crash leaves them to
+// the next open, which removes them. Files a commit retired are removed once no reader holds the
+// map (MapDirectory::exclude_readers()). A crash discards the staging file: the next open deletes
+// it.
 
 #include "backends/disk/map_directory.h"
+#include "backends/disk/map_manifest.h"
 #include "backends/disk/tile_file.h"
 #include "iwlomap/voxel_key.h"
 
@@ -23,9 +27,12 @@ namespace iwlomap::detail {
 
 /// The on-disk images of one tile.
 struct TileImage {
-  bool committed = false;
-  bool staged = false;
+  bool committed = false;  // named by the last commit
+  std::uint64_t generation = 0;
   std::uint64_t committed_bytes = 0;
+  std::size_t committed_known = 0;
+  std::uint32_t header_crc = 0;
+  bool staged = false;
   std::uint64_t staged_offset = 0;  // in the staging file
   std::uint64_t staged_bytes = 0;
   std::size_t known = 0;  // known voxels of the newest image (staged, else committed)
@@ -33,9 +40,12 @@ struct TileImage {
 
 class TileStore {
  public:
-  /// Reads the header of every tile file of \p dir (fully checked), so that a damaged map fails
-  /// here, before anything changes. Throws StorageError naming the file.
-  TileStore(MapDirectory& dir, double resolution, std::uint32_t tile_voxels);
+  /// Reads the manifest and the header of every tile file it names, fully checked and matched
+  /// against the manifest (a map without a manifest, written before them: the header of every
+  /// tile file), so that a damaged map fails here, before anything changes. A tile file that is
+  /// not part of the map is an error too. Throws StorageError naming the file. \p fallback is the
+  /// state of a map without a manifest (its metadata's).
+  TileStore(MapDirectory& dir, double resolution, std::uint32_t tile_voxels, const MapState& fallback);
   ~TileStore();
   TileStore(const TileStore&) = delete;
   TileStore& operator=(const TileStore&) = delete;
@@ -45,51 +55,74 @@ class TileStore {
   [[nodiscard]] const std::unordered_map<VoxelKey, TileImage, VoxelKeyHash>& images() const noexcept {
     return images_;
   }
+  /// The parameters and hit-statistics setting of the last commit.
+  [[nodiscard]] const MapState& committed_state() const noexcept { return state_; }
+  /// The manifest of the last commit (no retired files).
+  [[nodiscard]] MapManifest committed_manifest() const;
 
-  /// Reads the newest image of a tile and checks its header; \p bytes receives the whole image,
-  /// the return value names it in messages.
+  /// Reads the newest image of a tile and checks its header (and, for a committed file, that it
+  /// is the file the manifest names); \p bytes receives the whole image, the return value names
+  /// it in messages.
   TileHeader read(const VoxelKey& key, std::vector<std::uint8_t>& bytes, std::string& where);
 
   /// Appends \p encoded (the tile's complete state, \p known voxels) to the staging file. On
   /// failure nothing changes: an earlier staged image of the tile stays valid.
   void stage(const VoxelKey& key, const std::vector<std::uint8_t>& encoded, std::size_t known);
-  /// Writes \p encoded as the tile's file, durably (the directory is synced by finish_commits());
-  /// the tile's staged image, if any, is dropped. On failure the previous file and image stay.
-  void commit(const VoxelKey& key, const std::vector<std::uint8_t>& encoded, std::size_t known);
-  /// Commits the tile's staged image after checking it completely (a damaged staging file must
-  /// never spoil a tile file). \p image_buffer and \p check_block are scratch.
-  void commit_staged(const VoxelKey& key, std::vector<std::uint8_t>& image_buffer, DenseBlock& check_block);
-  /// After a series of commits: the directory fsync, and the staging file removed once no image
-  /// in it is needed.
-  void finish_commits();
 
-  /// Forgets every image: tile files are removed (a file that cannot be removed stays, with the
-  /// known count of its header, and the first such error is rethrown at the end), the staging file
-  /// goes. The directory is synced.
-  void clear();
+  // ---- a commit: write() or write_staged() per changed tile, then commit(); abort() on failure ----
+  /// Writes \p encoded as the tile's file of the next commit, fsync'ed. Nothing is visible before
+  /// commit().
+  void write(const VoxelKey& key, const std::vector<std::uint8_t>& encoded, std::size_t known);
+  /// write() of the tile's staged image after checking it completely (a damaged staging file
+  /// must never spoil the map). \p image_buffer and \p check_block are scratch.
+  void write_staged(const VoxelKey& key, std::vector<std::uint8_t>& image_buffer, DenseBlock& check_block);
+  /// Makes the written tiles part of the map with \p state, atomically (see the file comment);
+  /// \p drop_all first retires every tile (clear()). On failure, abort() before anything else.
+  void commit(const MapState& state, bool drop_all = false);
+  /// Forgets the tiles written since the last commit and removes their files. The map stays as
+  /// the last commit left it.
+  void abort() noexcept;
+  /// Forgets every staged image: each tile is back to its committed state.
+  void discard_staged() noexcept;
+  /// Removes the files no commit names, unless a reader holds the map (then a later commit or
+  /// open does). Writers only.
+  void remove_retired() noexcept;
 
-  /// Bytes of tile files, of the staging file.
+  /// Bytes of the committed tile files, of the staging file.
   [[nodiscard]] std::uint64_t committed_bytes() const noexcept { return committed_bytes_; }
   [[nodiscard]] std::uint64_t staging_bytes() const noexcept { return staging_size_; }
+  /// Bytes of the manifest.
+  [[nodiscard]] std::uint64_t manifest_bytes() const noexcept { return manifest_bytes_; }
   /// Known voxels of the newest images, in all.
   [[nodiscard]] std::size_t known() const noexcept;
 
  private:
+  struct Written {
+    VoxelKey key;
+    std::uint64_t bytes;
+    std::size_t known;
+    std::uint32_t header_crc;
+  };
+  void open_manifest(const std::string& path);
+  void open_listed();
   void unstage(TileImage& image) noexcept;
   void compact_staging();
   void drop_staging_if_unused() noexcept;
   [[nodiscard]] std::string staging_path() const { return dir_.path_of(kStagingName); }
-  [[nodiscard]] std::size_t committed_known(const VoxelKey& key) const;
 
   MapDirectory& dir_;
   double resolution_;
   std::uint32_t tile_voxels_;
   std::unordered_map<VoxelKey, TileImage, VoxelKeyHash> images_;
+  std::uint64_t commit_ = 0;  // the last commit's number
+  MapState state_;
+  std::vector<Written> written_;        // since the last commit
+  std::vector<RetiredFile> retired_;    // files no commit names, not yet removed
   std::uint64_t committed_bytes_ = 0;
+  std::uint64_t manifest_bytes_ = 0;
   int staging_fd_ = -1;
   std::uint64_t staging_size_ = 0;  // bytes of the staging file
   std::uint64_t staging_live_ = 0;  // bytes of its images still needed
-  bool dir_sync_pending_ = false;   // renames since the last directory fsync
 };
 
 }  // namespace iwlomap::detail
