@@ -236,6 +236,47 @@ TEST_F(DamagedTile, ThrowsNamingFileAndNeverReplacesItWhenPayloadByteFlipped) {
   EXPECT_NE(std::string(e.what()).find("missing"), std::string::npos) << e.what();
 }
 
+// repair() sets a damaged tile (or forgets a missing one) aside and commits the map of the others:
+// every other voxel as it was.
+TEST_F(DamagedTile, RepairSetsTheDamagedTileAsideAndKeepsEveryOtherVoxel) {
+  (void)damage([](std::vector<std::uint8_t>& b) { b[b.size() - 3] ^= 0x10; });
+  const std::string victim_name = fs::path(victim_).filename().string();
+  const std::string victim_prefix = victim_name.substr(0, victim_name.find('.') + 1);
+  const auto edge = static_cast<std::int32_t>(std::lround(tile_test::kTileSize / tile_test::kResolution));
+  const auto tile_of = [edge](std::int32_t a) { return a >= 0 ? a / edge : -((-a + edge - 1) / edge); };
+  Snapshot kept;
+  for (const auto& [k, v] : snapshot(ram_after_steps(4))) {
+    const std::string prefix = "tile_" + std::to_string(tile_of(k.x)) + "_" + std::to_string(tile_of(k.y)) + "_" +
+                               std::to_string(tile_of(k.z)) + ".";
+    if (prefix != victim_prefix) kept.emplace(k, v);
+  }
+  {
+    OutofcoreTileMapper locked(dir_, tile_test::kResolution, tile_test::kTileSize, 4);
+    (void)expect_storage_error([&] { (void)OutofcoreTileMapper::repair(dir_); }, StorageError::Kind::kLocked);
+  }
+  const DiskMapRepair r = OutofcoreTileMapper::repair(dir_);
+  ASSERT_EQ(r.set_aside.size(), 1u);
+  EXPECT_NE(r.set_aside[0].find(victim_name), std::string::npos) << r.set_aside[0];
+  EXPECT_NE(r.set_aside[0].find("checksum"), std::string::npos) << r.set_aside[0];
+  EXPECT_EQ(r.tiles_kept, tiles_.size() - 1);
+  EXPECT_TRUE(fs::exists(fs::path(dir_) / "damaged" / victim_name));
+  {
+    OutofcoreTileMapper map(dir_, tile_test::kResolution, tile_test::kTileSize, 4);
+    EXPECT_EQ(snapshot(map), kept);
+    EXPECT_EQ(map.get_num_nodes(), kept.size());
+  }
+  EXPECT_TRUE(OutofcoreTileMapper::repair(dir_).set_aside.empty()) << "a sound map is left as it is";
+  // A missing tile is forgotten, a foreign one moved aside.
+  const std::string other = (fs::path(dir_) / tile_files(dir_).front()).string();
+  fs::remove(other);
+  write_bytes((fs::path(dir_) / "tile_50_50_50.iwt").string(), {'x'});
+  const DiskMapRepair again = OutofcoreTileMapper::repair(dir_);
+  ASSERT_EQ(again.set_aside.size(), 2u);
+  EXPECT_EQ(again.set_aside[0].rfind("forgotten (missing)", 0), 0u) << again.set_aside[0];
+  EXPECT_NE(again.set_aside[1].find("not part of the map"), std::string::npos) << again.set_aside[1];
+  EXPECT_NO_THROW(OutofcoreTileMapper(dir_, tile_test::kResolution, tile_test::kTileSize, 4));
+}
+
 TEST_F(DamagedTile, ThrowsAtOpenNamingFileWhenHeaderByteFlipped) {
   (void)damage([](std::vector<std::uint8_t>& b) { b[30] ^= 0x01; });  // inside the resolution field
   expect_open_fails(StorageError::Kind::kCorrupt, "header checksum");

@@ -11,6 +11,7 @@
 #include <memory>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace iwlomap {
 
@@ -40,6 +41,14 @@ struct DiskMapInfo {
   double tile_size = 0.0;     ///< tile edge in metres
   size_t tile_voxels = 0;     ///< tile edge in voxels
   unsigned format_version = 0;
+};
+
+/// What OutofcoreTileMapper::repair() did.
+struct DiskMapRepair {
+  /// One line per tile file set aside (moved into `<directory>/damaged/`) or forgotten (missing),
+  /// naming it and why; empty when every tile was sound.
+  std::vector<std::string> set_aside;
+  size_t tiles_kept = 0;  ///< sound tiles, now the map
 };
 
 /// The out-of-core backend. Space is cut into cubic tiles of `tile_size` metres; each tile that
@@ -138,6 +147,14 @@ class OutofcoreTileMapper final : public BackendBase {
   /// throws std::logic_error; flush() does nothing. Throws StorageError when there is no
   /// map in \p directory or it is damaged.
   [[nodiscard]] static OutofcoreTileMapper open_read_only(const std::string& directory, size_t cache_tiles = 16);
+  /// Makes a usable map of the sound tiles of the map in \p directory: every tile is read and
+  /// checked completely (header, payload checksum and records, and that it is the file the last
+  /// commit wrote); the damaged ones, and tile files the map does not name, are moved into
+  /// `<directory>/damaged/` (a missing one is forgotten), and one commit makes the map of the
+  /// others. Voxels of those tiles are lost from the map; nothing else changes. Needs the
+  /// directory's lock, like a mapper (StorageError kLocked while one has it open). Throws
+  /// StorageError when the metadata or manifest itself is damaged (restore them from a copy).
+  static DiskMapRepair repair(const std::string& directory);
   /// True for a mapper from open_read_only().
   [[nodiscard]] bool is_read_only() const;
 

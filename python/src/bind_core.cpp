@@ -424,6 +424,9 @@ void bind_backend(py::module_& m) {
       .def_readonly("tile_size", &DiskMapInfo::tile_size)
       .def_readonly("tile_voxels", &DiskMapInfo::tile_voxels)
       .def_readonly("format_version", &DiskMapInfo::format_version);
+  py::class_<DiskMapRepair>(m, "DiskMapRepair")
+      .def_readonly("set_aside", &DiskMapRepair::set_aside)
+      .def_readonly("tiles_kept", &DiskMapRepair::tiles_kept);
   py::class_<OutofcoreTileMapper, Backend, std::shared_ptr<OutofcoreTileMapper>>(
       m, "OutofcoreTileMapper", "The Disk backend: a map larger than RAM in crash-safe tiles of a directory.")
       .def(py::init([](const py::handle& directory, double resolution, double tile_size, size_t cache_tiles) {
@@ -442,6 +445,14 @@ void bind_backend(py::module_& m) {
           },
           py::arg("directory"), py::arg("cache_tiles") = 16,
           "Reads the map's last commit, writing nothing; a writer may go on committing beside it.")
+      .def_static(
+          "repair",
+          [](const py::handle& directory) {
+            const std::string dir = path_from(directory);
+            py::gil_scoped_release release;
+            return OutofcoreTileMapper::repair(dir);
+          },
+          py::arg("directory"), "Sets the damaged tiles of a map aside so that the rest can be used.")
       .def_static(
           "read_map_info", [](const py::handle& directory) { return OutofcoreTileMapper::read_map_info(path_from(directory)); },
           py::arg("directory"))

@@ -246,6 +246,8 @@ def test_disk_map_commits_at_flush_and_rolls_back_a_failed_block(tmp_path, scan)
             1 / 0
     del m
     assert np.array_equal(voxel_table(iwlomap.OutofcoreTileMapper.open_read_only(d)), committed)
+    r = iwlomap.OutofcoreTileMapper.repair(d)
+    assert r.set_aside == [] and r.tiles_kept > 2
 
 
 def test_colour_means():

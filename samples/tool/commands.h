@@ -17,5 +17,6 @@ int run_render(const std::vector<std::string>& args);
 int run_sonar(const std::vector<std::string>& args);
 int run_pyramid(const std::vector<std::string>& args);
 int run_register(const std::vector<std::string>& args);
+int run_repair(const std::vector<std::string>& args);
 
 }  // namespace iwlomap::tool

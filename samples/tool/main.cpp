@@ -30,6 +30,7 @@ commands:
   sonar      map imaging-sonar pings (Oculus .raw) into one map, write the occupied voxels
   pyramid    write a map's multi-resolution max grids (Cartographer's precomputation grids) as PNGs
   register   find where a scan (sensor frame) fits a map; prints its pose
+  repair     set the damaged tiles of a disk map aside so that the rest can be used
 
 Run 'iwlomap <command> --help' for the options of a command, 'iwlomap --version' for the version
 and the layers of this build.
@@ -82,6 +83,7 @@ int main(int argc, char** argv) {
     if (command == "sonar") return run_sonar(rest);
     if (command == "pyramid") return run_pyramid(rest);
     if (command == "register") return run_register(rest);
+    if (command == "repair") return run_repair(rest);
     throw UsageError("unknown command '" + command + "'");
   } catch (const UsageError& e) {
     std::cerr << "iwlomap " << (command.rfind('-', 0) == 0 ? std::string() : command + " ") << "usage error: " << e.what()

@@ -41,7 +41,9 @@ map:
   --resolution M            voxel edge in metres (default 0.05)
   --backend ram|disk|octomap  map storage (default ram)
   --tiles DIR               map directory of the disk backend; an existing map there is continued
-                            (with its stored resolution and tile size unless given)
+                            (with its stored resolution and tile size unless given); the run's
+                            changes are committed at its end, all at once: a run that fails
+                            leaves the map as it was ('iwlomap repair DIR' for a damaged tile)
   --tile-size M             disk backend: tile edge in metres, rounded to whole blocks of 8 voxels
                             (default 10; 'iwlomap info DIR' prints the size in use)
   --cache-tiles N           disk backend: tiles kept in RAM (default 16)

@@ -143,6 +143,14 @@ check map_disk_damaged_tile 1 "$TOOL" map "$WORK/scan.pcd" --backend disk --tile
 expect damaged_tile_named grep -q "$victim.*checksum" "$WORK/map_disk_damaged_tile.err"
 (cd "$WORK/tiles_many" && sha256sum -- * | sort) >"$WORK/tiles_many_after.txt"
 expect failed_run_changes_no_file cmp -s "$WORK/tiles_many_before.txt" "$WORK/tiles_many_after.txt"
+# repair sets the damaged tile aside; the rest of the map is usable again, and sound.
+check repair_damaged_map 0 "$TOOL" repair "$WORK/tiles_many"
+expect repair_names_tile grep -q "set aside as .*damaged/$victim: .*checksum" "$WORK/repair_damaged_map.out"
+expect repair_moved_tile test -f "$WORK/tiles_many/damaged/$victim"
+check map_after_repair 0 "$TOOL" map "$WORK/scan.pcd" --backend disk --tiles "$WORK/tiles_many" --sensor lidar
+check repair_sound_map 0 "$TOOL" repair "$WORK/tiles_many"
+expect repair_sound_map_says_so grep -q "every tile is sound" "$WORK/repair_sound_map.out"
+check repair_no_map 1 "$TOOL" repair "$WORK/no_such_map"
 check pyramid_tiles 0 "$TOOL" pyramid "$WORK/tiles" --levels 2 -o "$WORK/pyramid_tiles"
 expect pyramid_tiles_png test -s "$WORK/pyramid_tiles/level_1.png"
 if has_layer viewer && [ -n "${DISPLAY:-}" ]; then

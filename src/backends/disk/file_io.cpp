@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cerrno>
 #include <cstring>
+#include <filesystem>
 
 namespace iwlomap::detail {
 
@@ -49,9 +50,10 @@ int open_retry(const char* path, int flags, mode_t mode = 0) {
 }  // namespace
 
 void throw_corrupt(const std::string& path, const std::string& what) {
+  const std::string dir = std::filesystem::path(path).parent_path().string();
   throw StorageError(StorageError::Kind::kCorrupt, path,
-                     "iwlomap: tile file " + path + " is corrupt: " + what +
-                         " (the file is left as it is)");
+                     "iwlomap: tile file " + path + " is corrupt: " + what + " (the file is left as it is" +
+                         (dir.empty() ? std::string() : "; 'iwlomap repair " + dir + "' sets damaged tiles aside") + ")");
 }
 
 std::vector<std::uint8_t> read_file_prefix(const std::string& path, std::size_t max_bytes, std::uint64_t& file_size) {

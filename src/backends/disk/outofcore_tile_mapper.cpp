@@ -315,6 +315,21 @@ void OutofcoreTileMapper::rollback() {
   m.rollback();
 }
 
+DiskMapRepair OutofcoreTileMapper::repair(const std::string& directory) {
+  const DiskMapInfo info = read_map_info(directory);
+  const std::uint32_t tile_voxels = static_cast<std::uint32_t>(info.tile_voxels);
+  detail::MapDirectory dir(directory, info.resolution, info.tile_size, tile_voxels);
+  const detail::MapMeta& meta = dir.meta();
+  detail::TileStore store(dir, info.resolution, tile_voxels,
+                          detail::MapState{meta.params, meta.hit_statistics, meta.hit_epoch}, true);
+  dir.remove_leftovers();
+  DiskMapRepair result;
+  result.set_aside = store.set_aside_damaged();
+  result.tiles_kept = store.images().size();
+  store.remove_retired();
+  return result;
+}
+
 DiskMapInfo OutofcoreTileMapper::read_map_info(const std::string& directory) {
   const detail::MapMeta m = detail::MapDirectory::read_meta(directory);
   return DiskMapInfo{m.resolution, m.tile_size, m.tile_voxels, m.version};

@@ -10,6 +10,7 @@
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
+#include <memory>
 #include <unordered_set>
 #include <utility>
 
@@ -21,14 +22,31 @@ namespace {
 constexpr std::uint64_t kCompactMinBytes = std::uint64_t{1} << 20;
 }  // namespace
 
-TileStore::TileStore(MapDirectory& dir, double resolution, std::uint32_t tile_voxels, const MapState& fallback)
-    : dir_(dir), resolution_(resolution), tile_voxels_(tile_voxels), state_(fallback) {
+TileStore::TileStore(MapDirectory& dir, double resolution, std::uint32_t tile_voxels, const MapState& fallback,
+                     bool collect_damage)
+    : dir_(dir), resolution_(resolution), tile_voxels_(tile_voxels), state_(fallback), collect_damage_(collect_damage) {
   const std::string manifest_path = dir_.path_of(kManifestName);
   std::error_code ec;
   if (std::filesystem::exists(manifest_path, ec))
     open_manifest(manifest_path);
   else
     open_listed();
+}
+
+template <class Check>
+bool TileStore::checked(const std::string& file, Check&& check) {
+  if (!collect_damage_) {
+    check();
+    return true;
+  }
+  try {
+    check();
+    return true;
+  } catch (const StorageError& e) {
+    if (e.kind() != StorageError::Kind::kCorrupt) throw;
+    damage_.push_back({file, e.what()});
+    return false;
+  }
 }
 
 // A map with a manifest: every file it names must be there, with a sound header that matches the
@@ -42,29 +60,7 @@ void TileStore::open_manifest(const std::string& path) {
   state_ = m.state;
   for (const ManifestTile& t : m.tiles) {
     const std::string tile_path = dir_.tile_path(t.key, t.generation);
-    struct stat st {};
-    if (::stat(tile_path.c_str(), &st) != 0) {
-      const int err = errno;
-      if (err != ENOENT)
-        throw StorageError(StorageError::Kind::kIo, tile_path,
-                           "iwlomap: cannot read " + tile_path + ": " + std::strerror(err));
-      throw StorageError(StorageError::Kind::kCorrupt, tile_path,
-                         "iwlomap: tile file " + tile_path + " is missing: the map's manifest " + path +
-                             " names it (deleted or moved away?)");
-    }
-    if (!S_ISREG(st.st_mode))
-      throw StorageError(StorageError::Kind::kCorrupt, tile_path,
-                         "iwlomap: tile file " + tile_path + " is not a regular file (the map's manifest " + path +
-                             " names it)");
-    // The header too (a small read per tile): a damaged map fails here, before anything changes.
-    std::uint64_t size = 0;
-    const std::vector<std::uint8_t> head = read_file_prefix(tile_path, kTileHeaderBytes, size);
-    const TileHeader h = parse_tile_header(head.data(), head.size(), size, resolution_, tile_voxels_, t.key, tile_path);
-    if (size != t.bytes || h.header_crc != t.header_crc || h.known_voxels != t.known)
-      throw_corrupt(tile_path, "it is not the file the map's manifest " + path + " names (" + std::to_string(size) +
-                                   " bytes, header CRC-32 " + hex32(h.header_crc) + "; the manifest says " +
-                                   std::to_string(t.bytes) + " bytes, " + hex32(t.header_crc) +
-                                   "): replaced by another file?");
+    if (!checked(tile_path, [&] { check_named_tile(t, tile_path, path); })) continue;
     TileImage& image = images_[t.key];
     image.committed = true;
     image.generation = t.generation;
@@ -83,10 +79,44 @@ void TileStore::open_manifest(const std::string& path) {
       continue;
     }
     const std::string file = dir_.path_of(f.name);
-    throw StorageError(StorageError::Kind::kCorrupt, file,
-                       "iwlomap: tile file " + file + " is not part of the map in " + dir_.path() +
-                           ": its manifest does not name it (copied in from another map?); move it out of the "
-                           "directory");
+    (void)checked(file, [&] {
+      throw StorageError(StorageError::Kind::kCorrupt, file,
+                         "iwlomap: tile file " + file + " is not part of the map in " + dir_.path() +
+                             ": its manifest does not name it (copied in from another map?); move it out of the "
+                             "directory");
+    });
+  }
+}
+
+// Checks that the tile file \p tile_path the manifest \p manifest_path names for \p t is there,
+// with a sound header that matches the manifest.
+void TileStore::check_named_tile(const ManifestTile& t, const std::string& tile_path,
+                                 const std::string& path) const {
+  {
+    struct stat st {};
+    if (::stat(tile_path.c_str(), &st) != 0) {
+      const int err = errno;
+      if (err != ENOENT)
+        throw StorageError(StorageError::Kind::kIo, tile_path,
+                           "iwlomap: cannot read " + tile_path + ": " + std::strerror(err));
+      throw StorageError(StorageError::Kind::kCorrupt, tile_path,
+                         "iwlomap: tile file " + tile_path + " is missing: the map's manifest " + path +
+                             " names it (deleted or moved away?); 'iwlomap repair " + dir_.path() +
+                             "' makes a map of the other tiles");
+    }
+    if (!S_ISREG(st.st_mode))
+      throw StorageError(StorageError::Kind::kCorrupt, tile_path,
+                         "iwlomap: tile file " + tile_path + " is not a regular file (the map's manifest " + path +
+                             " names it)");
+    // The header too (a small read per tile): a damaged map fails here, before anything changes.
+    std::uint64_t size = 0;
+    const std::vector<std::uint8_t> head = read_file_prefix(tile_path, kTileHeaderBytes, size);
+    const TileHeader h = parse_tile_header(head.data(), head.size(), size, resolution_, tile_voxels_, t.key, tile_path);
+    if (size != t.bytes || h.header_crc != t.header_crc || h.known_voxels != t.known)
+      throw_corrupt(tile_path, "it is not the file the map's manifest " + path + " names (" + std::to_string(size) +
+                                   " bytes, header CRC-32 " + hex32(h.header_crc) + "; the manifest says " +
+                                   std::to_string(t.bytes) + " bytes, " + hex32(t.header_crc) +
+                                   "): replaced by another file?");
   }
 }
 
@@ -100,8 +130,12 @@ void TileStore::open_listed() {
     }
     const std::string path = dir_.path_of(f.name);
     std::uint64_t size = 0;
-    const std::vector<std::uint8_t> head = read_file_prefix(path, kTileHeaderBytes, size);
-    const TileHeader h = parse_tile_header(head.data(), head.size(), size, resolution_, tile_voxels_, f.key, path);
+    TileHeader h;
+    if (!checked(path, [&] {
+          const std::vector<std::uint8_t> head = read_file_prefix(path, kTileHeaderBytes, size);
+          h = parse_tile_header(head.data(), head.size(), size, resolution_, tile_voxels_, f.key, path);
+        }))
+      continue;
     TileImage& image = images_[f.key];
     image.committed = true;
     image.committed_bytes = size;
@@ -305,6 +339,50 @@ void TileStore::discard_staged() noexcept {
     ++it;
   }
   drop_staging_if_unused();
+}
+
+std::vector<std::string> TileStore::set_aside_damaged() {
+  std::vector<VoxelKey> keys;
+  for (const auto& [k, image] : images_) keys.push_back(k);
+  std::sort(keys.begin(), keys.end());
+  std::vector<std::uint8_t> bytes;
+  auto block = std::make_unique<DenseBlock>();
+  for (const VoxelKey& k : keys) {
+    const TileImage& image = images_.at(k);
+    const std::string path = dir_.tile_path(k, image.generation);
+    if (!checked(path, [&] {
+          std::string where;
+          const TileHeader h = read(k, bytes, where);
+          decode_tile(bytes, h, tile_voxels_, where, *block, [](const DenseBlock&) {});
+        })) {
+      committed_bytes_ -= image.committed_bytes;
+      images_.erase(k);
+    }
+  }
+  std::vector<std::string> lines;
+  if (damage_.empty()) return lines;
+  namespace fs = std::filesystem;
+  const fs::path aside = fs::path(dir_.path()) / "damaged";
+  std::error_code ec;
+  fs::create_directories(aside, ec);
+  if (ec) throw StorageError(StorageError::Kind::kIo, aside.string(), "iwlomap: cannot create " + aside.string() + ": " + ec.message());
+  for (Damage& d : damage_) {
+    d.what = d.what.substr(0, d.what.find(" (the file is left as it is"));  // the advice is being taken
+    const fs::path from(d.file);
+    if (!fs::exists(fs::symlink_status(from, ec))) {
+      lines.push_back("forgotten (missing): " + d.what);
+      continue;
+    }
+    fs::path to = aside / from.filename();
+    for (int n = 1; fs::exists(fs::symlink_status(to, ec)); ++n) to = aside / (from.filename().string() + "." + std::to_string(n));
+    fs::rename(from, to, ec);
+    if (ec) throw StorageError(StorageError::Kind::kIo, d.file, "iwlomap: cannot move " + d.file + " to " + to.string() + ": " + ec.message());
+    lines.push_back("set aside as " + to.string() + ": " + d.what);
+  }
+  sync_directory(dir_.path());
+  commit(state_);  // the map without them
+  damage_.clear();
+  return lines;
 }
 
 // Removes the files no commit names, unless a reader holds the map (it may be reading them): then

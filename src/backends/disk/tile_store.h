@@ -44,8 +44,10 @@ class TileStore {
   /// against the manifest (a map without a manifest, written before them: the header of every
   /// tile file), so that a damaged map fails here, before anything changes. A tile file that is
   /// not part of the map is an error too. Throws StorageError naming the file. \p fallback is the
-  /// state of a map without a manifest (its metadata's).
-  TileStore(MapDirectory& dir, double resolution, std::uint32_t tile_voxels, const MapState& fallback);
+  /// state of a map without a manifest (its metadata's). \p collect_damage (repair()): a damaged,
+  /// missing or foreign tile file is noted instead of thrown, and left out of the map.
+  TileStore(MapDirectory& dir, double resolution, std::uint32_t tile_voxels, const MapState& fallback,
+            bool collect_damage = false);
   ~TileStore();
   TileStore(const TileStore&) = delete;
   TileStore& operator=(const TileStore&) = delete;
@@ -84,6 +86,11 @@ class TileStore {
   void abort() noexcept;
   /// Forgets every staged image: each tile is back to its committed state.
   void discard_staged() noexcept;
+  /// After a constructor that collected damage: checks every committed tile completely (header,
+  /// identity, payload), moves the damaged and foreign tile files into `damaged/` in the map
+  /// directory and commits the map without them. Returns one line per file set aside (or
+  /// forgotten, when missing). Writers only.
+  std::vector<std::string> set_aside_damaged();
   /// Removes the files no commit names, unless a reader holds the map (then a later commit or
   /// open does). Writers only.
   void remove_retired() noexcept;
@@ -103,8 +110,16 @@ class TileStore {
     std::size_t known;
     std::uint32_t header_crc;
   };
+  struct Damage {
+    std::string file;  // path
+    std::string what;  // the error's message
+  };
   void open_manifest(const std::string& path);
+  void check_named_tile(const ManifestTile& t, const std::string& tile_path, const std::string& path) const;
   void open_listed();
+  // Runs \p check; with collect_damage_, a kCorrupt StorageError is noted for \p file instead.
+  template <class Check>
+  bool checked(const std::string& file, Check&& check);
   void unstage(TileImage& image) noexcept;
   void compact_staging();
   void drop_staging_if_unused() noexcept;
@@ -118,6 +133,8 @@ class TileStore {
   MapState state_;
   std::vector<Written> written_;        // since the last commit
   std::vector<RetiredFile> retired_;    // files no commit names, not yet removed
+  bool collect_damage_ = false;
+  std::vector<Damage> damage_;
   std::uint64_t committed_bytes_ = 0;
   std::uint64_t manifest_bytes_ = 0;
   int staging_fd_ = -1;
