@@ -22,6 +22,7 @@
 #include <pybind11/functional.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <sstream>
@@ -339,11 +340,16 @@ void bind_backend(py::module_& m) {
       .def(
           "for_each_voxel",
           [](Backend& map, const std::function<void(const VoxelKey&, const VoxelState&)>& visit) {
-            // The callback runs Python: the GIL stays held, the map's lock is taken.
+            // The callback runs Python: the GIL stays held, the map's lock is taken, and the
+            // visitor's calls into this map are refused (they would wait on that lock).
+            refuse_call_from_visitor(map);
             const std::lock_guard<std::mutex> lock(map_mutex(map));
+            const VisitScope scope(map);
             map.for_each_voxel(visit);
           },
-          py::arg("visit"), "Calls visit(key, state) for every known voxel.")
+          py::arg("visit"),
+          "Calls visit(key, state) for every known voxel. The visitor may not call into this map "
+          "(RuntimeError); other maps are fine.")
       .def(
           "get_voxels",
           [](Backend& map) {
@@ -611,6 +617,20 @@ void bind_misc(py::module_& m) {
 }
 
 }  // namespace
+
+namespace {
+thread_local std::vector<const IMapperBackend*> visiting;  // maps whose visitor this thread runs
+}  // namespace
+
+void refuse_call_from_visitor(const IMapperBackend& map) {
+  if (std::find(visiting.begin(), visiting.end(), &map) != visiting.end())
+    throw std::runtime_error(
+        "iwlomap: a for_each_voxel() visitor may not call into the map it visits (the visit holds the map); "
+        "collect what you need in the visitor and call after it, or use get_voxels()");
+}
+
+VisitScope::VisitScope(const IMapperBackend& map) { visiting.push_back(&map); }
+VisitScope::~VisitScope() { visiting.pop_back(); }
 
 std::mutex& map_mutex(const IMapperBackend& map) {
   static std::mutex table_lock;

@@ -43,11 +43,26 @@ auto with_file_errors(const std::string& path, F&& f) -> decltype(f()) {
 /// thread-safe). One mutex per map object, kept for the process's life.
 std::mutex& map_mutex(const IMapperBackend& map);
 
+/// Throws std::runtime_error (Python's RuntimeError) when this thread is running a
+/// for_each_voxel() visitor of \p map: the visit holds the map's lock, so a call into the map
+/// from its visitor would wait for itself.
+void refuse_call_from_visitor(const IMapperBackend& map);
+
+/// Marks this thread as running a visitor of \p map while it lives (for_each_voxel()).
+class VisitScope {
+ public:
+  explicit VisitScope(const IMapperBackend& map);
+  ~VisitScope();
+  VisitScope(const VisitScope&) = delete;
+  VisitScope& operator=(const VisitScope&) = delete;
+};
+
 /// Runs \p f on \p map with the GIL released and the map's lock held (the GIL is given back
 /// before the lock is taken and retaken after it is released, so no thread holds one while
 /// waiting for the other).
 template <typename F>
 auto unlocked(const IMapperBackend& map, F&& f) -> decltype(f()) {
+  refuse_call_from_visitor(map);
   pybind11::gil_scoped_release release;
   const std::lock_guard<std::mutex> lock(map_mutex(map));
   return f();

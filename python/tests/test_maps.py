@@ -250,6 +250,27 @@ def test_disk_map_commits_at_flush_and_rolls_back_a_failed_block(tmp_path, scan)
     assert r.set_aside == [] and r.tiles_kept > 2
 
 
+@pytest.mark.parametrize("kind", ["ram", "disk"])
+def test_a_visitor_calling_into_its_map_raises_instead_of_waiting_forever(tmp_path, scan, kind):
+    origin, points, intensities = scan
+    m = lidar_map() if kind == "ram" else iwlomap.OutofcoreTileMapper(tmp_path / "tiles", 0.2, 6.4, 2)
+    m.insert_scan(origin, points[:200], intensities[:200])
+    other = lidar_map()
+    seen = []
+
+    def visit(key, state):
+        other.get_num_nodes()  # another map: allowed
+        seen.append(key)
+        m.query([0.0, 0.0, 0.0])
+
+    with pytest.raises(RuntimeError, match="visitor may not call into the map"):
+        m.for_each_voxel(visit)
+    assert len(seen) == 1
+    with pytest.raises(RuntimeError, match="visitor may not call into the map"):
+        m.for_each_voxel(lambda k, s: m.for_each_voxel(lambda k2, s2: None))
+    assert m.get_num_nodes() > 0  # the map is usable after
+
+
 def test_colour_means():
     c = iwlomap.VoxelColorMeans(0.1)
     pts = np.array([[0.01, 0.02, 0.03], [0.05, 0.05, 0.05], [0.5, 0.5, 0.5]])

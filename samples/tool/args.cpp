@@ -72,6 +72,13 @@ std::optional<double> Args::positive_or_none(const std::string& name) const {
   return d;
 }
 
+std::optional<double> Args::resolution() const {
+  const std::optional<double> r = number("--resolution");
+  if (r && !(*r > 0.0 && *r <= kMaxResolution))
+    throw UsageError("--resolution must be > 0 and at most " + shortest(kMaxResolution) + " metres, got " + shortest(*r));
+  return r;
+}
+
 long Args::integer(const std::string& name, long fallback, long min, long max) const {
   const auto v = value(name);
   if (!v) return fallback;

@@ -34,6 +34,11 @@ class Args {
   /// The option's value as a finite number > 0, or std::nullopt when absent or "none"; UsageError
   /// for 0, a negative value or anything else (e.g. --max-range: "none" is no limit).
   [[nodiscard]] std::optional<double> positive_or_none(const std::string& name) const;
+  /// --resolution in metres, in (0, kMaxResolution], or std::nullopt when absent; UsageError
+  /// otherwise. Voxel centres are written as 32-bit floats: an edge of 1e300 m would put them at
+  /// infinity.
+  [[nodiscard]] std::optional<double> resolution() const;
+  static constexpr double kMaxResolution = 10000.0;
   /// The option's value as an integer in [\p min, \p max] (UsageError otherwise, also for a sign
   /// or space around it, or a value beyond the range of long), or \p fallback when absent.
   [[nodiscard]] long integer(const std::string& name, long fallback, long min = std::numeric_limits<int>::min(),

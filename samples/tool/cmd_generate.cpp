@@ -4,6 +4,7 @@
 #include "args.h"
 #include "cloud_io.h"
 #include "commands.h"
+#include "map_options.h"
 #include "output_files.h"
 
 #include <iwlomap/synthetic_scan.h>
@@ -13,6 +14,8 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <iomanip>
+#include <sstream>
 #include <filesystem>
 #include <iostream>
 #include <limits>
@@ -22,6 +25,20 @@
 namespace iwlomap::tool {
 
 namespace {
+
+// A scan of rings x columns points, checked against the memory budget before anything is made:
+// about 100 bytes a point (the scan as doubles, the PCL cloud, the file buffer).
+void check_scan_size(long rings, long columns) {
+  const double bytes = 100.0 * static_cast<double>(rings) * static_cast<double>(columns);
+  const double budget = static_cast<double>(default_memory_limit());
+  if (bytes > budget) {
+    std::ostringstream m;
+    m << std::setprecision(3) << "--rings " << rings << " x --columns " << columns << " is "
+      << static_cast<double>(rings) * static_cast<double>(columns) << " points, about " << bytes / 1e9
+      << " GB, more than the memory budget of " << budget / 1e9 << " GB (3/4 of the memory, or of what ulimit -v leaves)";
+    throw UsageError(m.str());
+  }
+}
 const char* kHelp = R"(usage: iwlomap generate -o OUT.pcd [options]
        iwlomap generate --street-loop DIR [options]
 
@@ -82,6 +99,8 @@ int run_street_loop(const Args& args, const std::string& dir) {
   LidarOptions lidar;
   lidar.rings = static_cast<int>(args.integer("--rings", 32));
   lidar.columns = static_cast<int>(args.integer("--columns", 1024));
+  if (lidar.rings < 1 || lidar.columns < 1) throw UsageError("--rings and --columns must be >= 1");
+  check_scan_size(lidar.rings, lidar.columns);
   lidar.max_range = args.number("--range", 40.0);
   const double height = args.number("--height", 1.8);
   const long seed = args.integer("--seed", 1, 0, std::numeric_limits<std::uint32_t>::max());
@@ -182,6 +201,7 @@ int run_generate(const std::vector<std::string>& argv) {
   if (seed < 0) throw UsageError("--seed must be >= 0");
   opt.seed = static_cast<std::uint32_t>(seed);
   if (opt.rings < 1 || opt.columns < 1) throw UsageError("--rings and --columns must be >= 1");
+  check_scan_size(opt.rings, opt.columns);
   const SyntheticScan scan = make_synthetic_scan(opt);
 
   pcl::PointCloud<pcl::PointXYZI> cloud = cloud_of(scan.points, scan.intensities);

@@ -279,7 +279,11 @@ int run_map(const std::vector<std::string>& argv) {
       else if (loop_closure)
         setup.map->insert_scan(origin, xyz, intensity, setup.max_range);
       else if (!registered)  // (a registered file went in above)
-        integrate_cloud(*setup.map, *in.cloud, nullptr, setup.ray_casting, setup.max_range);
+        try {
+          integrate_cloud(*setup.map, *in.cloud, nullptr, setup.ray_casting, setup.max_range);
+        } catch (const std::invalid_argument& e) {  // the library's word on this file's data
+          throw std::runtime_error("'" + inputs[i] + "': " + e.what());
+        }
       progress.update(i + 1, name);
     }
     if (background) background->sync();

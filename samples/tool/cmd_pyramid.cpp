@@ -6,6 +6,8 @@
 #include "cloud_io.h"
 #include "commands.h"
 #include "map_open.h"
+#include "map_options.h"
+#include "output_files.h"
 
 #include <iwlomap/precomputation_stack.h>
 #include <iwlomap/probability_updater.h>
@@ -15,7 +17,9 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <cerrno>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
@@ -196,21 +200,12 @@ std::string encode_grey_png(int width, int height, const std::vector<std::uint8_
   return png;
 }
 
-// Written beside the target and renamed over it, so a failed write never leaves a torn file.
-void write_file(const std::filesystem::path& path, const std::string& bytes) {
-  const std::string partial = path.string() + ".partial";
-  {
-    std::ofstream out(partial, std::ios::binary | std::ios::trunc);
-    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-    if (!out) {
-      std::remove(partial.c_str());
-      throw std::runtime_error("cannot write '" + path.string() + "'");
-    }
-  }
-  if (std::rename(partial.c_str(), path.string().c_str()) != 0) {
-    std::remove(partial.c_str());
-    throw std::runtime_error("cannot write '" + path.string() + "'");
-  }
+// Writes \p bytes to \p file (an OutputFiles temporary).
+void write_bytes(const std::string& file, const std::string& bytes) {
+  std::ofstream out(file, std::ios::binary | std::ios::trunc);
+  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  out.close();
+  if (!out) throw std::runtime_error("cannot write '" + file + "': " + std::strerror(errno));
 }
 
 // The voxel cloud of `iwlomap map` as a map: each point's voxel gets the log-odds of its
@@ -247,9 +242,8 @@ std::unique_ptr<IMapperBackend> load_map(const std::string& path, const Args& ar
   }
   if (ext != ".pcd" && ext != ".ply")
     throw UsageError("the input must be .pcd, .ply, .bt, .ot or a tile directory, got '" + path + "'");
-  const auto resolution = args.number("--resolution");
+  const auto resolution = args.resolution();
   if (!resolution) throw UsageError("a .pcd/.ply voxel cloud needs --resolution (the map's voxel edge)");
-  if (!(*resolution > 0.0)) throw UsageError("--resolution must be > 0");
   return load_voxel_cloud(path, *resolution);
 }
 
@@ -298,6 +292,17 @@ int run_pyramid(const std::vector<std::string>& argv) {
   const bool quiet = args.flag("-q") || args.flag("--quiet");
 
   const std::string& input = args.positional()[0];
+  // The level files are checked before any work and appear together at the end (OutputFiles): a
+  // run that fails or is interrupted leaves none of them, and removes the folder if it made it.
+  namespace fs = std::filesystem;
+  OutputFiles files(args);
+  files.make_folder(*output);
+  std::vector<std::string> level_files;
+  for (long k = 0; k < levels; ++k)
+    for (const char* ext : {".png", ".txt"}) {
+      level_files.push_back((fs::path(*output) / ("level_" + std::to_string(k) + ext)).string());
+      files.add("-o", level_files.back(), {".png", ".txt"});
+    }
   const auto started = std::chrono::steady_clock::now();
   const std::unique_ptr<IMapperBackend> map = load_map(input, args);
   const double r = map->get_resolution();
@@ -309,14 +314,31 @@ int run_pyramid(const std::vector<std::string>& argv) {
   if (const auto z = args.number("--z-max")) box.max.z = std::min(box.max.z, z_key(*z));
   if (box.min.z > box.max.z) throw UsageError("--z-min/--z-max leave no voxel of the map");
   const DiscreteGrid2D base = slice ? discretize_slice(*map, box, *slice) : discretize_column_max(*map, box);
+  // Level k holds (X + 2^k - 1) x (Y + 2^k - 1) one-byte cells, and is written through a PNG and a
+  // text dump of up to 5 bytes a cell: refused before building when that passes the memory budget.
+  double stack_bytes = 0.0, level_bytes = 0.0;
+  for (long k = 0; k < levels; ++k) {
+    const double grow = std::ldexp(1.0, static_cast<int>(k)) - 1.0;
+    const double cells = (base.size().x() + grow) * (base.size().y() + grow);
+    stack_bytes += 2.0 * cells;  // the level and the buffer that builds it
+    level_bytes = std::max(level_bytes, 6.0 * cells);
+  }
+  const double budget = static_cast<double>(default_memory_limit());
+  if (stack_bytes + level_bytes > budget) {
+    std::ostringstream m;
+    m << std::setprecision(3) << levels << " levels over a " << base.size().x() << " x " << base.size().y()
+      << " base grid need about " << (stack_bytes + level_bytes) / 1e9 << " GB, more than the memory budget of "
+      << budget / 1e9 << " GB (3/4 of the memory, or of what ulimit -v leaves); give fewer --levels";
+    throw std::runtime_error(m.str());
+  }
   const PrecomputationStack2D stack(base, static_cast<int>(levels));
 
-  std::filesystem::create_directories(*output);
   for (int k = 0; k < stack.num_levels(); ++k) {
-    const std::filesystem::path dir(*output);
-    write_file(dir / ("level_" + std::to_string(k) + ".png"), png_of(stack.level(k)));
-    write_file(dir / ("level_" + std::to_string(k) + ".txt"), text_dump(stack.level(k)));
+    const auto at = static_cast<std::size_t>(2 * k);
+    files.write(level_files[at], [&](const std::string& file) { write_bytes(file, png_of(stack.level(k))); });
+    files.write(level_files[at + 1], [&](const std::string& file) { write_bytes(file, text_dump(stack.level(k))); });
   }
+  files.commit();
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
   if (!quiet) {
     const GridFrame& f = stack.frame();

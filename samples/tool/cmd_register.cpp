@@ -74,8 +74,7 @@ int run_register(const std::vector<std::string>& argv) {
   if (!map_path) throw UsageError("no map (--map MAP)");
   if (!scan_path) throw UsageError("no scan (--scan SCAN.pcd)");
   const registration::ScanMatcherOptions options = registration_options_from(args);
-  const auto resolution = args.number("--resolution");
-  if (resolution && !(*resolution > 0.0)) throw UsageError("--resolution must be > 0, got " + shortest(*resolution));
+  const auto resolution = args.resolution();
 
   const LoadedCloud scan = load_cloud(*scan_path, 255.0f);
   Eigen::Isometry3d initial = Eigen::Isometry3d::Identity();

@@ -184,9 +184,7 @@ int run_render(const std::vector<std::string>& argv) {
   OutputFiles files(args);
   files.add("-o", *output, {".png"});
   viewer::SnapshotOptions options = options_from(args);
-  const auto resolution_option = args.number("--resolution");
-  if (resolution_option && !(*resolution_option > 0.0))
-    throw UsageError("--resolution must be > 0, got " + shortest(*resolution_option));
+  const auto resolution_option = args.resolution();
 
   // Fail before reading a large file when the picture cannot be drawn anyway.
   viewer::SnapshotRenderer::check_display();

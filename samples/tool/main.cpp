@@ -12,6 +12,7 @@
 #include <pcl/console/print.h>
 
 #include <iostream>
+#include <new>
 #include <string>
 #include <vector>
 
@@ -89,6 +90,11 @@ int main(int argc, char** argv) {
     std::cerr << "iwlomap " << (command.rfind('-', 0) == 0 ? std::string() : command + " ") << "usage error: " << e.what()
               << " (see 'iwlomap " << (command.rfind('-', 0) == 0 ? std::string() : command + " ") << "--help')\n";
     return 2;
+  } catch (const std::bad_alloc&) {
+    show_status(true, "");
+    std::cerr << "iwlomap " << command << ": error: out of memory (a finer --resolution, a longer --max-range or "
+                 "larger inputs than this machine holds; --max-memory sets the budget the map keeps to)\n";
+    return 1;
   } catch (const iwlomap::MemoryLimitError& e) {
     show_status(true, "");
     std::cerr << "iwlomap " << command << ": error: " << e.what() << " (--resolution, --max-range, --max-memory)\n";

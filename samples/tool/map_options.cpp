@@ -147,8 +147,7 @@ MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base,
     throw UsageError(e.what());
   }
 
-  double resolution = args.number("--resolution", 0.05);
-  if (!(resolution > 0.0)) throw UsageError("--resolution must be > 0");
+  double resolution = args.resolution().value_or(0.05);
   // "none" (or no option) is no limit, the library's negative range; 0 or a negative value on the
   // command line is a mistake, not a request for no limit.
   s.max_range = args.positive_or_none("--max-range").value_or(-1.0);

@@ -3,9 +3,12 @@
 
 #include "args.h"
 
+#include <signal.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
+#include <atomic>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -32,16 +35,76 @@ bool same_file(const fs::path& a, const fs::path& b) {
   return !ec && ca == cb;
 }
 
+// The temporaries of uncommitted runs, for the signal handler: SIGINT, SIGTERM or SIGHUP removes
+// them before the process ends as the signal says, so that an interrupted run leaves no output.
+// Slots are taken with a compare-and-swap and the paths are never freed (a handler may be reading
+// one), so the handler touches nothing but atomics and unlink(), which are async-signal-safe.
+std::array<std::atomic<const char*>, 512> g_temporaries{};
+std::array<std::atomic<const char*>, 8> g_folders{};  // made by a run, removed after (if empty)
+
+extern "C" void remove_temporaries_and_end(int sig) {
+  for (auto& slot : g_temporaries)
+    if (const char* path = slot.load()) ::unlink(path);
+  for (auto& slot : g_folders)
+    if (const char* path = slot.load()) ::rmdir(path);
+  ::signal(sig, SIG_DFL);
+  ::raise(sig);
+}
+
+void watch_signals() {
+  static const bool installed = [] {
+    struct sigaction action {};
+    action.sa_handler = remove_temporaries_and_end;
+    sigemptyset(&action.sa_mask);
+    for (const int sig : {SIGINT, SIGTERM, SIGHUP}) ::sigaction(sig, &action, nullptr);
+    return true;
+  }();
+  (void)installed;
+}
+
+// Registers \p path in a free slot (a run with more outputs than slots keeps the rest to its
+// destructor); returns the slot or -1.
+template <std::size_t N>
+int register_path(std::array<std::atomic<const char*>, N>& slots, const std::string& path) {
+  const char* copy = ::strdup(path.c_str());
+  if (copy == nullptr) return -1;
+  for (std::size_t i = 0; i < slots.size(); ++i) {
+    const char* expected = nullptr;
+    if (slots[i].compare_exchange_strong(expected, copy)) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+int register_temporary(const std::string& path) { return register_path(g_temporaries, path); }
+
+void release_temporary(int slot) {
+  if (slot >= 0) g_temporaries[static_cast<std::size_t>(slot)].store(nullptr);
+}
+
 }  // namespace
 
 OutputFiles::OutputFiles(const Args& args) {
+  watch_signals();
   for (const std::string& p : args.positional()) inputs_.emplace_back("the input", p);
   for (const auto& [option, value] : args.values()) inputs_.emplace_back(option, value);
 }
 
 OutputFiles::~OutputFiles() {
+  for (const int slot : slots_) release_temporary(slot);
+  if (folder_slot_ >= 0) g_folders[static_cast<std::size_t>(folder_slot_)].store(nullptr);
   if (committed_) return;
   for (const std::string& t : temporaries_) std::remove(t.c_str());
+  std::error_code ec;
+  if (!made_folder_.empty()) fs::remove(made_folder_, ec);  // only when empty
+}
+
+void OutputFiles::make_folder(const std::string& folder) {
+  std::error_code ec;
+  if (fs::is_directory(folder, ec)) return;
+  if (!fs::create_directories(folder, ec))
+    throw std::runtime_error("cannot create the output folder '" + folder + "': " + ec.message());
+  made_folder_ = folder;
+  folder_slot_ = register_path(g_folders, folder);
 }
 
 void OutputFiles::add(const std::string& option, const std::string& path, std::initializer_list<const char*> extensions) {
@@ -77,6 +140,7 @@ void OutputFiles::add(const std::string& option, const std::string& path, std::i
   const std::string name = "." + target.stem().string() + ".iwlomap-" + std::to_string(::getpid()) + "-" +
                            std::to_string(targets_.size()) + ext;
   temporaries_.push_back((folder / name).string());
+  slots_.push_back(register_temporary(temporaries_.back()));
 }
 
 std::string OutputFiles::temporary(const std::string& path) const {
@@ -93,6 +157,14 @@ void OutputFiles::write(const std::string& path, const std::function<void(const 
     std::string message = e.what();
     for (std::size_t at = message.find(file); at != std::string::npos; at = message.find(file, at + path.size()))
       message.replace(at, file.size(), path);
+    // Some writers (PCL's) do not name the file; a full file system is said as such.
+    if (message.find(path) == std::string::npos) message = "cannot write '" + path + "': " + message;
+    const fs::path folder = fs::path(file).has_parent_path() ? fs::path(file).parent_path() : fs::path(".");
+    std::error_code ec;
+    const fs::space_info space = fs::space(folder, ec);
+    if (!ec && space.available < (std::uintmax_t{1} << 20))
+      message += " (the file system has " + std::to_string(space.available) + " bytes free)";
+    std::remove(file.c_str());
     throw std::runtime_error(message);
   }
 }
@@ -105,6 +177,8 @@ void OutputFiles::commit() {
   for (std::size_t i = 0; i < targets_.size(); ++i) {
     if (std::rename(temporaries_[i].c_str(), targets_[i].c_str()) != 0)
       throw std::runtime_error("cannot write '" + targets_[i] + "': " + std::strerror(errno));
+    release_temporary(slots_[i]);
+    slots_[i] = -1;
   }
   committed_ = true;
 }

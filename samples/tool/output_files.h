@@ -6,7 +6,9 @@
 // inputs, also through a link), each file is written
 // to a temporary in its own folder, and commit() renames the temporaries over the targets only
 // after every writer succeeded. A run that fails (an exception before commit()) removes its
-// temporaries, so it leaves no output at all, neither new nor torn.
+// temporaries, so it leaves no output at all, neither new nor torn; so does a run ended by
+// SIGINT, SIGTERM or SIGHUP (a handler removes the temporaries, then the signal ends the process
+// as it would have). A writer's error names the target and says when the file system is full.
 
 #include <functional>
 #include <initializer_list>
@@ -36,6 +38,10 @@ class OutputFiles {
   /// path is a folder.
   void add(const std::string& option, const std::string& path, std::initializer_list<const char*> extensions);
 
+  /// Creates \p folder (with its parents) for outputs to go in, unless it exists; a run that does
+  /// not commit removes it again (when empty), also when a signal ends it. One per run.
+  void make_folder(const std::string& folder);
+
   /// The temporary to write \p path into: a hidden file in the same folder with the same
   /// extension (writers that choose the format by extension keep working). \p path must have
   /// been added.
@@ -56,6 +62,9 @@ class OutputFiles {
   std::vector<std::pair<std::string, std::string>> inputs_;  // (where it was given, path)
   std::vector<std::string> targets_;
   std::vector<std::string> temporaries_;
+  std::vector<int> slots_;  // of each temporary in the signal handler's list, -1 when none
+  std::string made_folder_;
+  int folder_slot_ = -1;
   bool committed_ = false;
 };
 

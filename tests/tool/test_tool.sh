@@ -153,6 +153,29 @@ expect repair_sound_map_says_so grep -q "every tile is sound" "$WORK/repair_soun
 check repair_no_map 1 "$TOOL" repair "$WORK/no_such_map"
 check pyramid_tiles 0 "$TOOL" pyramid "$WORK/tiles" --levels 2 -o "$WORK/pyramid_tiles"
 expect pyramid_tiles_png test -s "$WORK/pyramid_tiles/level_1.png"
+# All or nothing: a file-size limit makes a level's write fail; no level file, no folder is left.
+check pyramid_full_disk 1 bash -c "trap '' XFSZ; ulimit -f 40; exec '$TOOL' pyramid '$WORK/tiles_many' --levels 9 -o '$WORK/pyramid_full'"
+expect pyramid_full_disk_names_file grep -q "cannot write '$WORK/pyramid_full/level_.*': File too large" "$WORK/pyramid_full_disk.err"
+expect pyramid_full_disk_leaves_nothing test ! -e "$WORK/pyramid_full"
+# SIGTERM at moments spread over a run: a run that ends early leaves no file and no folder; one
+# that finished left every level. (Which moments land in the writing varies; the property holds
+# at every moment.)
+pyramid_term_ok() {
+  for d in 0.1 0.2 0.3 0.4 0.5 0.6 0.8 1.2; do
+    rm -rf "$WORK/pyramid_term"
+    timeout -s TERM "$d" "$TOOL" pyramid "$WORK/tiles" --levels 12 -o "$WORK/pyramid_term" -q
+    rc=$?
+    if [ "$rc" -eq 0 ]; then
+      [ "$(ls -A "$WORK/pyramid_term" | wc -l)" -eq 24 ] || { echo "after $d s: exit 0 but not 24 files"; return 1; }
+    elif [ "$rc" -eq 124 ]; then
+      [ ! -e "$WORK/pyramid_term" ] || { echo "after $d s: terminated, left $(ls -A "$WORK/pyramid_term")"; return 1; }
+    else
+      echo "after $d s: exit $rc"; return 1
+    fi
+    ! ls -A "$WORK" | grep -q '^\.level_' || { echo "after $d s: a temporary is left"; return 1; }
+  done
+}
+expect pyramid_sigterm_leaves_all_or_nothing pyramid_term_ok
 if has_layer viewer && [ -n "${DISPLAY:-}" ]; then
   check render_tiles 0 "$TOOL" render "$WORK/tiles" -o "$WORK/tiles.png"
   expect render_tiles_png test -s "$WORK/tiles.png"
@@ -177,6 +200,13 @@ check threads_overflow 2 "$TOOL" map "$WORK/scan.pcd" --threads 9999999999999999
 check threads_trailing 2 "$TOOL" map "$WORK/scan.pcd" --threads 2x
 check cache_tiles_space 2 "$TOOL" map "$WORK/scan.pcd" --backend disk --tiles "$WORK/t_space" --cache-tiles " 3"
 check rings_beyond_int 2 "$TOOL" generate -o "$WORK/g.pcd" --rings 4294967297
+# Sizes checked against the memory budget before anything is made; voxels that a 32-bit float
+# cannot place refused up front.
+check scan_beyond_memory 2 "$TOOL" generate -o "$WORK/g.pcd" --rings 100000 --columns 100000
+expect scan_beyond_memory_says_budget grep -q "more than the memory budget" "$WORK/scan_beyond_memory.err"
+check resolution_beyond_float 2 "$TOOL" map "$WORK/scan.pcd" --resolution 1e300 -o "$WORK/never.pcd"
+expect resolution_beyond_float_one_line one_line resolution_beyond_float
+expect resolution_beyond_float_no_output test ! -e "$WORK/never.pcd"
 expect rings_beyond_int_one_line one_line rings_beyond_int
 check threads_2_31 2 "$TOOL" map "$WORK/scan.pcd" --threads 2147483648
 expect threads_2_31_names_value grep -q "2147483648" "$WORK/threads_2_31.err"
@@ -483,6 +513,9 @@ if [ -z "${IWLOMAP_TOOL_SANITIZED:-}" ]; then
   check too_fine_ulimit 1 bash -c "ulimit -v 2000000 && exec timeout 120 '$TOOL' map '$WORK/outlier.pcd' --resolution 0.0002"
   expect too_fine_ulimit_one_line one_line too_fine_ulimit
   expect too_fine_ulimit_memory_error bash -c "grep -q 'past the map memory limit' '$WORK/too_fine_ulimit.err' && ! grep -q bad_alloc '$WORK/too_fine_ulimit.err'"
+  check pyramid_levels_beyond_memory 1 bash -c "ulimit -v 2000000 && exec '$TOOL' pyramid '$WORK/tiles' --levels 16 -o '$WORK/pyramid_16'"
+  expect pyramid_levels_beyond_memory_says_so grep -q "give fewer --levels" "$WORK/pyramid_levels_beyond_memory.err"
+  expect pyramid_levels_beyond_memory_leaves_nothing test ! -e "$WORK/pyramid_16"
 fi
 for bad in 12Q 0 -5 1.5G 99999999999999999999 16E; do
   check "max_memory_bad_$bad" 2 "$TOOL" map "$WORK/outlier.pcd" --max-memory "$bad"
