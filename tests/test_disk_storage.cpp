@@ -171,7 +171,6 @@ class DamagedTile : public ::testing::Test {
   }
 
   TempDir tmp_;
-  std::size_t remaining_ = 0;
   std::string dir_;
   std::vector<std::string> tiles_;
   std::string victim_;
@@ -191,15 +190,9 @@ TEST_F(DamagedTile, ThrowsNamingFileAndNeverReplacesItWhenPayloadByteFlipped) {
     // A voxel of the damaged tile and one of a healthy tile.
     VoxelKey in_victim{}, healthy{};
     bool have_victim = false, have_healthy = false;
-    std::size_t victim_voxels = 0;
     const std::string victim_name = fs::path(victim_).filename().string();
     ram.for_each_voxel([&](const VoxelKey& k, const VoxelState&) {
-      constexpr std::int32_t edge = 32;
-      const auto fd = [](std::int32_t a) { return a >= 0 ? a / edge : -((-a + edge - 1) / edge); };
-      const std::string prefix =
-          "tile_" + std::to_string(fd(k.x)) + "_" + std::to_string(fd(k.y)) + "_" + std::to_string(fd(k.z)) + ".";
-      const bool in_victim_tile = victim_name.rfind(prefix, 0) == 0;
-      victim_voxels += in_victim_tile ? 1 : 0;
+      const bool in_victim_tile = tile_name_prefix(k) == tile_name_prefix(victim_name);
       if (in_victim_tile && !have_victim) {
         in_victim = k;
         have_victim = true;
@@ -225,7 +218,6 @@ TEST_F(DamagedTile, ThrowsNamingFileAndNeverReplacesItWhenPayloadByteFlipped) {
     // The healthy part still takes updates, and is written by flush.
     map.batch_update_iwlo(points.topRows(1), Eigen::VectorXd::Constant(1, 200.0), {true});
     map.flush();
-    remaining_ = ram.get_num_nodes() - victim_voxels;
   }  // destruction flushes too
   EXPECT_EQ(read_bytes(victim_), image.at(fs::path(victim_).filename().string())) << "the damaged tile was replaced";
   // Moved away, it is missed: the manifest names it.
@@ -242,15 +234,9 @@ TEST_F(DamagedTile, ThrowsNamingFileAndNeverReplacesItWhenPayloadByteFlipped) {
 TEST_F(DamagedTile, RepairSetsTheDamagedTileAsideAndKeepsEveryOtherVoxel) {
   (void)damage([](std::vector<std::uint8_t>& b) { b[b.size() - 3] ^= 0x10; });
   const std::string victim_name = fs::path(victim_).filename().string();
-  const std::string victim_prefix = victim_name.substr(0, victim_name.find('.') + 1);
-  const auto edge = static_cast<std::int32_t>(std::lround(tile_test::kTileSize / tile_test::kResolution));
-  const auto tile_of = [edge](std::int32_t a) { return a >= 0 ? a / edge : -((-a + edge - 1) / edge); };
   Snapshot kept;
-  for (const auto& [k, v] : snapshot(ram_after_steps(4))) {
-    const std::string prefix = "tile_" + std::to_string(tile_of(k.x)) + "_" + std::to_string(tile_of(k.y)) + "_" +
-                               std::to_string(tile_of(k.z)) + ".";
-    if (prefix != victim_prefix) kept.emplace(k, v);
-  }
+  for (const auto& [k, v] : snapshot(ram_after_steps(4)))
+    if (tile_name_prefix(k) != tile_name_prefix(victim_name)) kept.emplace(k, v);
   {
     OutofcoreTileMapper locked(dir_, tile_test::kResolution, tile_test::kTileSize, 4);
     (void)expect_storage_error([&] { (void)OutofcoreTileMapper::repair(dir_); }, StorageError::Kind::kLocked);
@@ -521,9 +507,7 @@ TEST(OutofcoreTileMapper, DestructorSwallowsWriteErrorsAndKeepsLastFlushedState)
   }  // the flush of the destructor fails: no exception escapes
   fs::remove(dir);
   fs::rename(aside, dir);
-  OutofcoreTileMapper reopened(dir, tile_test::kResolution, tile_test::kTileSize, 4);
-  ProbabilityUpdater ram = ram_after_steps(3);
-  expect_same_map(reopened, ram);
+  expect_reopened_after_steps(dir, 3);
 }
 
 TEST(OutofcoreTileMapper, ThrowsIoErrorWhenDirectoryReadOnlyForNonRoot) {
@@ -604,9 +588,7 @@ TEST(OutofcoreTileMapper, RollbackReturnsToTheLastCommitAndChangesNoFile) {
     EXPECT_EQ(directory_image(dir), image);
     tile_test::apply_step(map, 3);
   }  // the destructor commits step 3
-  OutofcoreTileMapper reopened(dir, tile_test::kResolution, tile_test::kTileSize, 4);
-  ProbabilityUpdater ram = ram_after_steps(3);
-  expect_same_map(reopened, ram);
+  expect_reopened_after_steps(dir, 3);
 }
 
 // What the tool does when a run fails on a damaged tile: the calls before it succeeded, the run
@@ -617,15 +599,10 @@ TEST(OutofcoreTileMapper, LeavesEveryFileAsItWasWhenARunOnADamagedMapRollsBack) 
   write_small_map(dir, 6);
   // A tile the first step does not touch, so that the run applies something before it fails.
   std::set<std::string> first_step_tiles;
-  const auto edge = static_cast<std::int32_t>(std::lround(tile_test::kTileSize / tile_test::kResolution));
-  const auto tile_of = [edge](std::int32_t a) { return a >= 0 ? a / edge : -((-a + edge - 1) / edge); };
-  ram_after_steps(1).for_each_voxel([&](const VoxelKey& k, const VoxelState&) {
-    first_step_tiles.insert("tile_" + std::to_string(tile_of(k.x)) + "_" + std::to_string(tile_of(k.y)) + "_" +
-                            std::to_string(tile_of(k.z)) + ".");
-  });
+  for (const auto& entry : snapshot(ram_after_steps(1))) first_step_tiles.insert(tile_name_prefix(entry.first));
   std::string victim;
   for (const std::string& name : tile_files(dir))
-    if (first_step_tiles.count(name.substr(0, name.find('.') + 1)) == 0) victim = (fs::path(dir) / name).string();
+    if (first_step_tiles.count(tile_name_prefix(name)) == 0) victim = (fs::path(dir) / name).string();
   ASSERT_FALSE(victim.empty());
   std::vector<std::uint8_t> bytes = read_bytes(victim);
   bytes[bytes.size() - 3] ^= 0x10;  // payload: the header still checks out at open
@@ -744,9 +721,7 @@ TEST(OutofcoreTileMapper, ThrowsAtOpenNamingATileFileTheManifestDoesNotName) {
     EXPECT_EQ(directory_image(dir), image) << "a failed open must not change any file";
     fs::remove(extra);
   }
-  OutofcoreTileMapper map(dir, tile_test::kResolution, tile_test::kTileSize, 4);
-  ProbabilityUpdater ram = ram_after_steps(2);
-  expect_same_map(map, ram);
+  expect_reopened_after_steps(dir, 2);
 }
 
 // A sound tile file of the same tile, but not the one the last commit wrote (an older copy put
@@ -812,9 +787,7 @@ TEST(OutofcoreTileMapper, OpensAMapWrittenBeforeManifestsAndConvertsItAtItsFirst
   }
   EXPECT_EQ(OutofcoreTileMapper::read_map_info(dir).format_version, 3u);
   EXPECT_TRUE(fs::exists(fs::path(dir) / "iwlomap_map.manifest"));
-  OutofcoreTileMapper reopened(dir, tile_test::kResolution, tile_test::kTileSize, 4);
-  ProbabilityUpdater ram = ram_after_steps(4);
-  expect_same_map(reopened, ram);
+  expect_reopened_after_steps(dir, 4);
 }
 
 }  // namespace

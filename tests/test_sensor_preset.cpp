@@ -141,9 +141,9 @@ TEST(IntensityCheck, FlagsCloudsTheParametersWouldTurnIntoFreeSpace) {
   EXPECT_FALSE(check_intensities(zeros, lidar).thins_map());
 
   Eigen::VectorXd mostly_dark = Eigen::VectorXd::Constant(100, 10.0);
-  mostly_dark.head(5).setConstant(200.0);  // 95 % at or below 35
+  mostly_dark.head(49).setConstant(200.0);  // 51 % at or below 35: most returns are free space
   EXPECT_TRUE(check_intensities(mostly_dark, sonar).thins_map());
-  mostly_dark.head(15).setConstant(200.0);  // 85 %
+  mostly_dark.head(50).setConstant(200.0);  // half
   EXPECT_FALSE(check_intensities(mostly_dark, sonar).thins_map());
   EXPECT_TRUE(check_intensities(mostly_dark, sonar).advice().empty());
 

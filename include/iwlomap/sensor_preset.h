@@ -50,8 +50,8 @@ struct IntensityCheck {
   std::size_t at_or_below_threshold = 0; ///< of those, at or below intensity_threshold: free space
   bool all_equal = false;               ///< every finite intensity is the same value (>= 2 points)
 
-  /// True when more than 90 % of the points are at or below the threshold, or all intensities are
-  /// equal and at or below it: the map would keep few or none of the cloud's surfaces.
+  /// True when most points (more than half) are at or below the threshold, or all intensities are
+  /// equal and at or below it: the map would keep few of the cloud's surfaces, or none.
   [[nodiscard]] bool thins_map() const;
   /// One sentence for a user: what happens and which preset to use instead (empty when
   /// !thins_map()).

@@ -103,7 +103,7 @@ int run_map(const std::vector<std::string>& argv) {
 #endif
   const Args args(argv, value_opts, flag_opts);
   if (args.flag("-h") || args.flag("--help")) {
-    std::cout << kHelp << map_outputs_help() << map_options_help() << "  -q, --quiet               no summary, no progress bar\n";
+    std::cout << kHelp << map_outputs_help() << map_options_help(true, SensorPreset::kLidar) << "  -q, --quiet               no summary, no progress bar\n";
 #ifdef IWLOMAP_HAVE_REGISTRATION
     std::cout << registration_options_help();
 #endif
@@ -128,7 +128,7 @@ int run_map(const std::vector<std::string>& argv) {
   if (poses_out) files.add("--write-poses", *poses_out, {".txt", ".tum", ".kitti"});
   const MapOutputs extra = map_outputs_from(args, files);
 
-  const MapSetup setup = map_setup_from(args);
+  const MapSetup setup = map_setup_from(args, SensorPreset::kLidar);
   MapCommit commit(setup.map);
   const bool mean_positions = args.flag("--mean-positions");
   if (mean_positions) setup.map->set_hit_accumulation(true);

@@ -54,7 +54,7 @@ int run_map_mpi(const Args& args, const std::vector<std::string>& inputs, const 
   // A rank that fails on its own (a file it cannot read, an output it cannot write) ends the job:
   // the others would wait for it forever. mpirun reports the abort.
   try {
-    const MapSetup setup = map_setup_from(args, std::nullopt, /*open_map=*/false);
+    const MapSetup setup = map_setup_from(args, SensorPreset::kLidar, std::nullopt, /*open_map=*/false);
     if (setup.backend == "octomap") throw UsageError("--mpi maps on ram or disk shards, not octomap");
     mpi::DistributedOptions options;
     options.backend = setup.backend;

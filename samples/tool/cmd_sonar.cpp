@@ -172,7 +172,7 @@ int run_sonar(const std::vector<std::string>& argv) {
   flag_opts.insert({"-h", "--help", "-q", "--quiet", "--register", "--loop-closure", "--sonar-preset"});
   const Args args(argv, value_opts, flag_opts);
   if (args.flag("-h") || args.flag("--help")) {
-    std::cout << kHelp << map_outputs_help() << map_options_help(/*rays=*/false);
+    std::cout << kHelp << map_outputs_help() << map_options_help(/*rays=*/false, SensorPreset::kSonar);
     return 0;
   }
   const auto& inputs = args.positional();
@@ -204,7 +204,8 @@ int run_sonar(const std::vector<std::string>& argv) {
     throw UsageError("--sonar-preset sets the map's parameters: leave out --sensor (the IWLO options still apply)");
   // --intensity-threshold and the other IWLO options apply over the preset in map_setup_from().
   const SonarPreset preset = sonar_preset();
-  const MapSetup setup = use_preset ? map_setup_from(args, preset.map) : map_setup_from(args);
+  const MapSetup setup = use_preset ? map_setup_from(args, SensorPreset::kSonar, preset.map)
+                                    : map_setup_from(args, SensorPreset::kSonar);
   MapCommit commit(setup.map);
   SonarProjectorParams params = use_preset ? preset.projector : SonarProjectorParams{};
   params.intensity_threshold = setup.params.intensity_threshold;

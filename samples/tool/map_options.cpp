@@ -28,7 +28,7 @@ std::set<std::string> map_value_options() {
 
 std::set<std::string> map_flag_options() { return {"--no-rays", "--no-adaptive"}; }
 
-std::string map_options_help(bool rays) {
+std::string map_options_help(bool rays, SensorPreset default_sensor) {
   const IwloParams d;
   const auto num = [](double v) { return shortest(v); };
   const std::string ray_options = rays ? R"(  --max-range M             clip rays longer than M metres (> 0); those points give no hit
@@ -47,12 +47,13 @@ map:
   --tile-size M             disk backend: tile edge in metres, rounded to whole blocks of 8 voxels
                             (default 10; 'iwlomap info DIR' prints the size in use)
   --cache-tiles N           disk backend: tiles kept in RAM (default 16)
-)") + ray_options + R"(  --sensor sonar|lidar|depth  preset (default sonar, the reference defaults: an echo at or below
-                            the intensity threshold is free space); lidar: every return is a hit
+)") + ray_options + R"(  --sensor sonar|lidar|depth  preset (default )" + sensor_preset_name(default_sensor) + R"(); lidar: every return is a hit
                             weighted by its intensity, however dark, and moved obstacles clear
                             after 7 free observations as in OctoMap; depth: as lidar with every
-                            return full weight. The options below override the preset; the
-                            defaults in brackets are those of --sensor sonar.
+                            return full weight; sonar: the reference defaults, an echo at or below
+                            the intensity threshold is free space. The options below override the
+                            preset; the defaults given with them are the reference's (sonar).
+                            A run warns when its preset makes most returns free space.
   --threshold P             output voxels with occupancy probability > P (default )" + num(d.occupied_threshold) + R"()
   --threads N               threads for ray casting (default 1; 0 = all cores); same map for any N
   --max-memory SIZE         memory the map may hold, in bytes or with a suffix K, M, G, T (powers
@@ -116,14 +117,14 @@ std::size_t parse_memory_size(const std::string& text) {
   return static_cast<std::size_t>(value) << shift;
 }
 
-MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base, bool open_map) {
+MapSetup map_setup_from(const Args& args, SensorPreset default_sensor, const std::optional<IwloParams>& base,
+                        bool open_map) {
   MapSetup s;
   if (base) {
     s.params = *base;
   } else {
-    const std::string sensor = args.value("--sensor").value_or("sonar");
-    const auto preset = parse_sensor_preset(sensor);
-    if (!preset) throw UsageError("--sensor must be sonar, lidar or depth, got '" + sensor + "'");
+    const auto preset = args.has("--sensor") ? parse_sensor_preset(*args.value("--sensor")) : default_sensor;
+    if (!preset) throw UsageError("--sensor must be sonar, lidar or depth, got '" + *args.value("--sensor") + "'");
     s.sensor = *preset;
     s.params = sensor_preset_params(*preset);
   }

@@ -36,7 +36,7 @@ struct MapSetup {
 [[nodiscard]] std::set<std::string> map_flag_options();
 /// Help lines for the map options; \p rays false leaves out --max-range and --no-rays (for
 /// commands that cast no rays from points, as `sonar`, which gives --max-range its own meaning).
-[[nodiscard]] std::string map_options_help(bool rays = true);
+[[nodiscard]] std::string map_options_help(bool rays, SensorPreset default_sensor);
 
 /// The --max-memory default: 3/4 of the physical memory, or half of the address space left under
 /// RLIMIT_AS when that is less.
@@ -46,11 +46,12 @@ struct MapSetup {
 
 /// Builds the backend and parameters the options ask for (preset first, explicit options over it),
 /// and sets the process's map memory limit (--max-memory).
+/// \p default_sensor: the preset without --sensor (`map`: lidar, `sonar`: sonar).
 /// \p base: the IWLO parameters the options override instead of the --sensor preset's (--sensor is
 /// then not read: a caller passing a base refuses it). With \p open_map false the map is not
 /// built (MapSetup::map stays empty): the caller builds it from the recorded choices.
-[[nodiscard]] MapSetup map_setup_from(const Args& args, const std::optional<IwloParams>& base = std::nullopt,
-                                      bool open_map = true);
+[[nodiscard]] MapSetup map_setup_from(const Args& args, SensorPreset default_sensor,
+                                      const std::optional<IwloParams>& base = std::nullopt, bool open_map = true);
 
 /// A run's map commit: commit() flushes the map (a disk map's one commit of the run); a run that
 /// leaves before it (an error, a signal's exception) rolls a disk map back, so that a failed run

@@ -9,6 +9,8 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <memory>
+#include <mutex>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -37,8 +39,9 @@ bool same_file(const fs::path& a, const fs::path& b) {
 
 // The temporaries of uncommitted runs, for the signal handler: SIGINT, SIGTERM or SIGHUP removes
 // them before the process ends as the signal says, so that an interrupted run leaves no output.
-// Slots are taken with a compare-and-swap and the paths are never freed (a handler may be reading
-// one), so the handler touches nothing but atomics and unlink(), which are async-signal-safe.
+// Slots are taken with a compare-and-swap and the paths are kept to the end (a handler may be
+// reading one), so the handler touches nothing but atomics, unlink() and rmdir(), which are
+// async-signal-safe.
 std::array<std::atomic<const char*>, 512> g_temporaries{};
 std::array<std::atomic<const char*>, 8> g_folders{};  // made by a run, removed after (if empty)
 
@@ -66,8 +69,16 @@ void watch_signals() {
 // destructor); returns the slot or -1.
 template <std::size_t N>
 int register_path(std::array<std::atomic<const char*>, N>& slots, const std::string& path) {
-  const char* copy = ::strdup(path.c_str());
-  if (copy == nullptr) return -1;
+  // Every copy stays reachable from here for the process's life (a handler may be reading one).
+  static std::mutex kept_lock;
+  static std::vector<std::unique_ptr<char[]>> kept;
+  auto owned = std::make_unique<char[]>(path.size() + 1);
+  std::memcpy(owned.get(), path.c_str(), path.size() + 1);
+  const char* copy = owned.get();
+  {
+    const std::lock_guard<std::mutex> lock(kept_lock);
+    kept.push_back(std::move(owned));
+  }
   for (std::size_t i = 0; i < slots.size(); ++i) {
     const char* expected = nullptr;
     if (slots[i].compare_exchange_strong(expected, copy)) return static_cast<int>(i);

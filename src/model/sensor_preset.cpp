@@ -43,7 +43,7 @@ std::optional<SensorPreset> parse_sensor_preset(const std::string& name) {
 
 bool IntensityCheck::thins_map() const {
   if (points == 0) return false;
-  return at_or_below_threshold * 10 > points * 9 || (all_equal && at_or_below_threshold == points);
+  return at_or_below_threshold * 2 > points || (all_equal && at_or_below_threshold == points);
 }
 
 std::string IntensityCheck::advice() const {

@@ -152,4 +152,23 @@ inline ProbabilityUpdater ram_after_steps(int steps) {
   return ram;
 }
 
+// Reopens the map in \p dir and expects it to equal the RAM map after steps 1..\p steps.
+inline void expect_reopened_after_steps(const std::string& dir, int steps) {
+  OutofcoreTileMapper reopened(dir, tile_test::kResolution, tile_test::kTileSize, 4);
+  ProbabilityUpdater ram = ram_after_steps(steps);
+  expect_same_map(reopened, ram);
+}
+
+// "tile_<x>_<y>_<z>.": the start of every file name of the tile holding voxel \p k in the maps of
+// tile_test_inputs.h, whatever the commit that wrote it.
+inline std::string tile_name_prefix(const VoxelKey& k) {
+  const auto edge = static_cast<std::int32_t>(std::lround(tile_test::kTileSize / tile_test::kResolution));
+  const auto tile_of = [edge](std::int32_t a) { return a >= 0 ? a / edge : -((-a + edge - 1) / edge); };
+  return "tile_" + std::to_string(tile_of(k.x)) + "_" + std::to_string(tile_of(k.y)) + "_" +
+         std::to_string(tile_of(k.z)) + ".";
+}
+
+// The same start of a tile file's name \p name.
+inline std::string tile_name_prefix(const std::string& name) { return name.substr(0, name.find('.') + 1); }
+
 }  // namespace iwlomap::disk_test

@@ -474,11 +474,15 @@ check doubles_read 0 "$TOOL" info "$WORK/doubles.pcd"
 expect doubles_bounds grep -q "x \[1.5, 2.5\] y \[-2.25, -1.25\] z \[3.125, 4.125\]" "$WORK/doubles_read.out"
 expect doubles_intensity grep -q "intensity: \[300, 700\]" "$WORK/doubles_read.out"
 
-# Sensor presets: a cloud whose intensities are all 0 maps to nothing with the default (sonar)
-# preset, with one warning naming the lidar preset; with --sensor lidar every return is a hit.
+# Sensor presets: `map` maps a lidar cloud with the lidar preset unless told otherwise; a cloud
+# whose intensities are all 0 maps to nothing with the sonar preset, with one warning naming the
+# lidar preset; with --sensor lidar every return is a hit.
+check map_default_preset 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 -o "$WORK/default_preset.pcd"
+check map_lidar_preset 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar -o "$WORK/lidar_preset.pcd"
+expect map_default_is_lidar bash -c "grep -q 'lidar preset' '$WORK/map_default_preset.out' && cmp -s '$WORK/default_preset.pcd' '$WORK/lidar_preset.pcd'"
 pcd zeros.pcd "4 4 4 4" "$F4" "1 1 1 1" 400 "0.05 0.05 0.05 1 0 0 0" ascii
 awk 'BEGIN { for (i = 0; i < 400; i++) printf "3.0 %.3f %.3f 0\n", (i % 20) * 0.1 - 1.0, int(i / 20) * 0.1 - 1.0 }' >>"$WORK/zeros.pcd"
-check zeros_sonar 0 "$TOOL" map "$WORK/zeros.pcd" "$WORK/zeros.pcd" --resolution 0.2 -o "$WORK/zeros_sonar.pcd"
+check zeros_sonar 0 "$TOOL" map "$WORK/zeros.pcd" "$WORK/zeros.pcd" --resolution 0.2 --sensor sonar -o "$WORK/zeros_sonar.pcd"
 expect zeros_sonar_warns_once bash -c "test \$(grep -c 'warning: .*--sensor lidar' '$WORK/zeros_sonar.err') = 1"
 expect zeros_sonar_names_preset grep -q "sonar preset: .* 0 occupied" "$WORK/zeros_sonar.out"
 check zeros_lidar 0 "$TOOL" map "$WORK/zeros.pcd" --resolution 0.2 --sensor lidar -o "$WORK/zeros_lidar.pcd"
