@@ -87,7 +87,7 @@ if [ "$SANITIZE" = 1 ]; then
     -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_WITH_VIEWER=OFF -DIWLOMAP_WITH_FILTERS=OFF "${SANITIZER_FLAGS[@]}" \
     "${CCACHE_ARGS[@]}"
   cmake --build build-tsan -j "${JOBS:-$(nproc)}" --target test_probability_updater test_background_job \
-    test_optimizer test_outofcore_tile_mapper test_disk_storage test_internals test_scan_matcher test_registered_sonar_mapper \
+    test_optimizer test_outofcore_tile_mapper test_disk_commits test_internals test_scan_matcher test_registered_sonar_mapper \
     test_pose_graph_mapper test_backend_contract
   stage_end
   stage_start "ThreadSanitizer tests"

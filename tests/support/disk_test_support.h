@@ -13,6 +13,9 @@
 
 #include <gtest/gtest.h>
 
+#include <signal.h>
+#include <sys/resource.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -170,5 +173,28 @@ inline std::string tile_name_prefix(const VoxelKey& k) {
 
 // The same start of a tile file's name \p name.
 inline std::string tile_name_prefix(const std::string& name) { return name.substr(0, name.find('.') + 1); }
+
+// A full disk, made real with RLIMIT_FSIZE (root is bound by it too): writes beyond the limit fail
+// with EFBIG. SIGXFSZ is ignored while the limit is set, so the write returns the error instead.
+class FileSizeLimit {
+ public:
+  explicit FileSizeLimit(rlim_t bytes) {
+    ::getrlimit(RLIMIT_FSIZE, &saved_);
+    old_handler_ = ::signal(SIGXFSZ, SIG_IGN);
+    rlimit l = saved_;
+    l.rlim_cur = bytes;
+    ::setrlimit(RLIMIT_FSIZE, &l);
+  }
+  ~FileSizeLimit() {
+    ::setrlimit(RLIMIT_FSIZE, &saved_);
+    ::signal(SIGXFSZ, old_handler_);
+  }
+  FileSizeLimit(const FileSizeLimit&) = delete;
+  FileSizeLimit& operator=(const FileSizeLimit&) = delete;
+
+ private:
+  rlimit saved_{};
+  sighandler_t old_handler_;
+};
 
 }  // namespace iwlomap::disk_test
