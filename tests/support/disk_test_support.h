@@ -142,6 +142,20 @@ inline StorageError expect_storage_error(Call&& call, StorageError::Kind kind) {
   return StorageError(StorageError::Kind::kIo, "", "");
 }
 
+// Expects opening the map in \p dir, for writing and read-only, to throw StorageError of \p kind
+// naming \p file with \p text in its message, and no file of the directory to change.
+inline void expect_open_refused(const std::string& dir, StorageError::Kind kind, const std::string& file,
+                                const std::string& text) {
+  const auto image = directory_image(dir);
+  const StorageError e = expect_storage_error(
+      [&] { OutofcoreTileMapper map(dir, tile_test::kResolution, tile_test::kTileSize, 4); }, kind);
+  EXPECT_EQ(e.path(), file);
+  EXPECT_NE(std::string(e.what()).find(text), std::string::npos) << e.what();
+  const StorageError r = expect_storage_error([&] { (void)OutofcoreTileMapper::open_read_only(dir); }, kind);
+  EXPECT_EQ(r.path(), file);
+  EXPECT_EQ(directory_image(dir), image) << "a failed open must not change any file";
+}
+
 // A map of a few tiles, flushed and closed: the starting point of the storage error tests.
 inline void write_small_map(const std::string& dir, int steps) {
   OutofcoreTileMapper map(dir, tile_test::kResolution, tile_test::kTileSize, 16);
