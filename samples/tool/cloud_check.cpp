@@ -27,8 +27,22 @@ constexpr std::size_t kMaxHeaderBytes = 1 << 20;
 // Values per point (the sum of COUNTs, or PLY properties) beyond which a file is refused.
 constexpr std::uint64_t kMaxValuesPerPoint = 1 << 16;
 
+// \p what quotes the file's own bytes: control and non-ASCII bytes are written as \xNN, so that
+// the message stays one line a terminal shows as it is.
 [[noreturn]] void fail(const std::string& path, const std::string& what) {
-  throw std::runtime_error("'" + path + "': " + what);
+  std::string shown;
+  for (const char c : what) {
+    const auto u = static_cast<unsigned char>(c);
+    if (u >= 0x20 && u < 0x7f) {
+      shown += c;
+    } else {
+      static const char* hex = "0123456789abcdef";
+      shown += "\\x";
+      shown += hex[u >> 4];
+      shown += hex[u & 15];
+    }
+  }
+  throw std::runtime_error("'" + path + "': " + shown);
 }
 
 std::vector<std::string> words(const std::string& line) {
