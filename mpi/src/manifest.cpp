@@ -68,8 +68,7 @@ void assemble_map(const detail::MapManifest& from, const std::vector<detail::Man
   m.commit = from.commit;
   m.state = from.state;
   m.tiles = tiles;
-  std::sort(m.tiles.begin(), m.tiles.end(),
-            [](const detail::ManifestTile& a, const detail::ManifestTile& b) { return a.key < b.key; });
+  detail::sort_by_tile(m.tiles);
   for (const detail::ManifestTile& t : m.tiles) m.commit = std::max(m.commit, t.generation);
   detail::sync_directory(target.string());
   detail::write_manifest_file(target.string(), m);

@@ -47,7 +47,7 @@ struct OutofcoreTileMapper::Impl {
         tile_voxels(detail::tile_voxels_for(res, tile)),
         tile_size(static_cast<double>(tile_voxels) * res),
         dir(directory, res, tile, tile_voxels, read_only),
-        store(dir, res, tile_voxels, detail::MapState{dir.meta().params, dir.meta().hit_statistics, dir.meta().hit_epoch}),
+        store(dir, res, tile_voxels, detail::state_of(dir.meta())),
         cache(store, cache_tiles, res, tile_voxels, total_known, hit_settings),
         routing(tile_voxels),
         updater(store.committed_state().params) {

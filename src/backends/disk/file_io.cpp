@@ -52,7 +52,7 @@ int open_retry(const char* path, int flags, mode_t mode = 0) {
 void throw_corrupt(const std::string& path, const std::string& what) {
   const std::string dir = std::filesystem::path(path).parent_path().string();
   throw StorageError(StorageError::Kind::kCorrupt, path,
-                     "iwlomap: tile file " + path + " is corrupt: " + what + " (the file is left as it is" +
+                     "iwlomap: tile file " + path + " is corrupt: " + what + kCorruptAdvice +
                          (dir.empty() ? std::string() : "; 'iwlomap repair " + dir + "' sets damaged tiles aside") + ")");
 }
 

@@ -41,7 +41,9 @@ void sync_directory(const std::string& directory);
 /// Removes a file; a missing file is not an error.
 void remove_file(const std::string& path);
 
-/// Throws StorageError (kCorrupt) "tile file <path> is corrupt: <what>".
+/// Where throw_corrupt()'s advice to the user starts in its message.
+inline constexpr const char* kCorruptAdvice = " (the file is left as it is";
+/// Throws StorageError (kCorrupt) "tile file <path> is corrupt: <what>", then the advice.
 [[noreturn]] void throw_corrupt(const std::string& path, const std::string& what);
 
 }  // namespace iwlomap::detail

@@ -22,28 +22,6 @@ constexpr std::size_t kTileBytes = 40;
 constexpr std::size_t kRetiredBytes = 24;
 constexpr int kParams = 13;
 
-void store_f64(std::uint8_t* p, double v) {
-  std::uint64_t bits;
-  std::memcpy(&bits, &v, sizeof bits);
-  store_u64(p, bits);
-}
-double load_f64(const std::uint8_t* p) {
-  const std::uint64_t bits = load_u64(p);
-  double v;
-  std::memcpy(&v, &bits, sizeof v);
-  return v;
-}
-
-void store_key(std::uint8_t* p, const VoxelKey& k) {
-  store_u32(p, static_cast<std::uint32_t>(k.x));
-  store_u32(p + 4, static_cast<std::uint32_t>(k.y));
-  store_u32(p + 8, static_cast<std::uint32_t>(k.z));
-}
-VoxelKey load_key(const std::uint8_t* p) {
-  return {static_cast<std::int32_t>(load_u32(p)), static_cast<std::int32_t>(load_u32(p + 4)),
-          static_cast<std::int32_t>(load_u32(p + 8))};
-}
-
 [[noreturn]] void bad(const std::string& path, const std::string& what) {
   throw StorageError(StorageError::Kind::kCorrupt, path,
                      "iwlomap: map manifest " + path + " is corrupt: " + what +
@@ -155,6 +133,12 @@ void write_manifest_file(const std::string& directory, const MapManifest& m) {
   sync_directory(directory);
 }
 
+void sort_by_tile(std::vector<ManifestTile>& tiles) {
+  std::sort(tiles.begin(), tiles.end(), [](const ManifestTile& a, const ManifestTile& b) { return a.key < b.key; });
+}
+
+MapState state_of(const MapMeta& meta) { return {meta.params, meta.hit_statistics, meta.hit_epoch}; }
+
 MapManifest read_committed_manifest(const std::string& directory) {
   namespace fs = std::filesystem;
   const std::string path = (fs::path(directory) / kManifestName).string();
@@ -166,7 +150,7 @@ MapManifest read_committed_manifest(const std::string& directory) {
   }
   const MapMeta meta = MapDirectory::read_meta(directory);
   MapManifest m;
-  m.state = {meta.params, meta.hit_statistics, meta.hit_epoch};
+  m.state = state_of(meta);
   for (fs::directory_iterator it(directory, ec), end; !ec && it != end; it.increment(ec)) {
     VoxelKey t;
     std::uint64_t generation = 0;
@@ -174,14 +158,12 @@ MapManifest read_committed_manifest(const std::string& directory) {
     if (!it->is_regular_file(type_ec) || !parse_tile_file_name(it->path().filename().string(), t, generation) ||
         generation != 0)
       continue;
-    const std::string tile_path = it->path().string();
     std::uint64_t size = 0;
-    const std::vector<std::uint8_t> head = read_file_prefix(tile_path, kTileHeaderBytes, size);
-    const TileHeader h = parse_tile_header(head.data(), head.size(), size, meta.resolution, meta.tile_voxels, t, tile_path);
+    const TileHeader h = read_tile_header(it->path().string(), meta.resolution, meta.tile_voxels, t, size);
     m.tiles.push_back({t, 0, size, h.known_voxels, h.header_crc});
   }
   if (ec) throw StorageError(StorageError::Kind::kIo, directory, "iwlomap: cannot list " + directory + ": " + ec.message());
-  std::sort(m.tiles.begin(), m.tiles.end(), [](const ManifestTile& a, const ManifestTile& b) { return a.key < b.key; });
+  sort_by_tile(m.tiles);
   return m;
 }
 

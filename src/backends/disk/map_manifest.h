@@ -53,6 +53,10 @@ struct MapState {
   std::uint32_t hit_epoch = 0;
 };
 
+struct MapMeta;  // map_directory.h
+/// The state a map's metadata records (a map without a manifest).
+[[nodiscard]] MapState state_of(const MapMeta& meta);
+
 /// Equal parameters (all 13, exactly) and hit-statistics setting.
 [[nodiscard]] bool same_state(const MapState& a, const MapState& b) noexcept;
 
@@ -62,6 +66,9 @@ struct MapManifest {
   std::vector<ManifestTile> tiles;    // sorted by key
   std::vector<RetiredFile> retired;   // may name files already removed
 };
+
+/// Sorts \p tiles by tile key, the manifest's order.
+void sort_by_tile(std::vector<ManifestTile>& tiles);
 
 [[nodiscard]] std::vector<std::uint8_t> encode_manifest(const MapManifest& m);
 /// Writes \p m as the manifest of \p directory durably (temporary file, fsync, rename, directory

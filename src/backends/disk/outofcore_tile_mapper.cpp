@@ -319,9 +319,7 @@ DiskMapRepair OutofcoreTileMapper::repair(const std::string& directory) {
   const DiskMapInfo info = read_map_info(directory);
   const std::uint32_t tile_voxels = static_cast<std::uint32_t>(info.tile_voxels);
   detail::MapDirectory dir(directory, info.resolution, info.tile_size, tile_voxels);
-  const detail::MapMeta& meta = dir.meta();
-  detail::TileStore store(dir, info.resolution, tile_voxels,
-                          detail::MapState{meta.params, meta.hit_statistics, meta.hit_epoch}, true);
+  detail::TileStore store(dir, info.resolution, tile_voxels, detail::state_of(dir.meta()), true);
   dir.remove_leftovers();
   DiskMapRepair result;
   result.set_aside = store.set_aside_damaged();

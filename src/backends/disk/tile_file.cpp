@@ -86,9 +86,7 @@ std::uint64_t encode_tile(const BlockGrid& grid, const HitAccumulator* hits, std
   for (const VoxelBlock* b : blocks) {
     dense.voxels.fill(Voxel{});
     b->for_each_slot([&](int i, const Voxel& v) { dense.voxels[static_cast<std::size_t>(i)] = v; });
-    store_u32(p, static_cast<std::uint32_t>(b->key.x));
-    store_u32(p + 4, static_cast<std::uint32_t>(b->key.y));
-    store_u32(p + 8, static_cast<std::uint32_t>(b->key.z));
+    store_key(p, b->key);
     std::uint8_t* const mask = p + 16;
     std::uint8_t* v = p + kRecordFixedBytes;
     std::uint32_t n = 0;
@@ -117,9 +115,7 @@ std::uint64_t encode_tile(const BlockGrid& grid, const HitAccumulator* hits, std
   for (std::size_t r = 0; r < hit_blocks.size(); ++r) {
     if (visited[r] == 0) continue;
     const auto& [k, b] = hit_blocks[r];
-    store_u32(p, static_cast<std::uint32_t>(k.x));
-    store_u32(p + 4, static_cast<std::uint32_t>(k.y));
-    store_u32(p + 8, static_cast<std::uint32_t>(k.z));
+    store_key(p, k);
     store_u32(p + 12, visited[r]);
     std::uint8_t* const mask = p + 16;
     std::uint8_t* c = p + kRecordFixedBytes;
@@ -150,12 +146,8 @@ std::uint64_t encode_tile(const BlockGrid& grid, const HitAccumulator* hits, std
   store_u32(h + 12, kByteOrderMark);
   store_u32(h + 16, static_cast<std::uint32_t>(kTileHeaderBytes));
   store_u32(h + 20, tile_voxels);
-  std::uint64_t res_bits;
-  std::memcpy(&res_bits, &resolution, sizeof res_bits);
-  store_u64(h + 24, res_bits);
-  store_u32(h + 32, static_cast<std::uint32_t>(tile.x));
-  store_u32(h + 36, static_cast<std::uint32_t>(tile.y));
-  store_u32(h + 40, static_cast<std::uint32_t>(tile.z));
+  store_f64(h + 24, resolution);
+  store_key(h + 32, tile);
   store_u32(h + 44, static_cast<std::uint32_t>(blocks.size()));
   store_u64(h + 48, known);
   store_u64(h + 56, payload);
@@ -193,10 +185,8 @@ TileHeader parse_tile_header(const std::uint8_t* data, std::size_t available, st
     throw_corrupt(path, "header size " + std::to_string(load_u32(data + 16)) + ", expected " +
                             std::to_string(kTileHeaderBytes));
   h.tile_voxels = load_u32(data + 20);
-  const std::uint64_t res_bits = load_u64(data + 24);
-  std::memcpy(&h.resolution, &res_bits, sizeof h.resolution);
-  h.tile = {static_cast<std::int32_t>(load_u32(data + 32)), static_cast<std::int32_t>(load_u32(data + 36)),
-            static_cast<std::int32_t>(load_u32(data + 40))};
+  h.resolution = load_f64(data + 24);
+  h.tile = load_key(data + 32);
   h.record_count = load_u32(data + 44);
   h.known_voxels = load_u64(data + 48);
   h.payload_bytes = load_u64(data + 56);
@@ -223,6 +213,12 @@ TileHeader parse_tile_header(const std::uint8_t* data, std::size_t available, st
       h.known_voxels > static_cast<std::uint64_t>(h.record_count) * kBlockVoxels)
     throw_corrupt(path, "inconsistent record count " + std::to_string(h.record_count));
   return h;
+}
+
+TileHeader read_tile_header(const std::string& path, double resolution, std::uint32_t tile_voxels,
+                            const VoxelKey& tile, std::uint64_t& file_size) {
+  const std::vector<std::uint8_t> head = read_file_prefix(path, kTileHeaderBytes, file_size);
+  return parse_tile_header(head.data(), head.size(), file_size, resolution, tile_voxels, tile, path);
 }
 
 }  // namespace iwlomap::detail

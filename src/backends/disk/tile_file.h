@@ -95,6 +95,11 @@ std::uint64_t encode_tile(const BlockGrid& grid, const HitAccumulator* hits, std
                                            double resolution, std::uint32_t tile_voxels, const VoxelKey& tile,
                                            const std::string& path);
 
+/// Reads the header of the tile file \p path (its first kTileHeaderBytes bytes) and checks it as
+/// parse_tile_header() does; \p file_size receives the file's size.
+[[nodiscard]] TileHeader read_tile_header(const std::string& path, double resolution, std::uint32_t tile_voxels,
+                                         const VoxelKey& tile, std::uint64_t& file_size);
+
 /// Checks the payload checksum of a whole tile file \p bytes (whose header \p h was parsed) and
 /// calls fn(const DenseBlock&) once per voxel record, in file order, then
 /// hit_fn(block key, const HitAccumulator::Block&) once per hit record. \p scratch is reused for
@@ -141,6 +146,28 @@ inline void store_u64(std::uint8_t* p, std::uint64_t v) noexcept {
   store_u32(p + 4, static_cast<std::uint32_t>(v >> 32));
 }
 
+inline void store_f64(std::uint8_t* p, double v) noexcept {
+  std::uint64_t bits;
+  std::memcpy(&bits, &v, sizeof bits);
+  store_u64(p, bits);
+}
+inline double load_f64(const std::uint8_t* p) noexcept {
+  const std::uint64_t bits = load_u64(p);
+  double v;
+  std::memcpy(&v, &bits, sizeof v);
+  return v;
+}
+/// A key as three i32, x first.
+inline void store_key(std::uint8_t* p, const VoxelKey& k) noexcept {
+  store_u32(p, static_cast<std::uint32_t>(k.x));
+  store_u32(p + 4, static_cast<std::uint32_t>(k.y));
+  store_u32(p + 8, static_cast<std::uint32_t>(k.z));
+}
+inline VoxelKey load_key(const std::uint8_t* p) noexcept {
+  return {static_cast<std::int32_t>(load_u32(p)), static_cast<std::int32_t>(load_u32(p + 4)),
+          static_cast<std::int32_t>(load_u32(p + 8))};
+}
+
 /// Floor division of a key by a positive divisor (tile coordinate of a voxel or block key).
 [[nodiscard]] inline std::int32_t floor_div(std::int32_t a, std::int32_t b) noexcept {
   const std::int32_t q = a / b;
@@ -175,8 +202,7 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
   std::uint64_t mask[kBlockVoxels / 64];
   const auto read_record_head = [&](const std::string& where, bool first, std::size_t cell_bytes) {
     if (static_cast<std::size_t>(end - p) < kRecordFixedBytes) throw_corrupt(path, where + " is cut short");
-    const VoxelKey key{static_cast<std::int32_t>(load_u32(p)), static_cast<std::int32_t>(load_u32(p + 4)),
-                       static_cast<std::int32_t>(load_u32(p + 8))};
+    const VoxelKey key = load_key(p);
     const std::uint32_t n = load_u32(p + 12);
     if (!block_in_tile(key))
       throw_corrupt(path, where + " holds block (" + std::to_string(key.x) + ", " + std::to_string(key.y) + ", " +

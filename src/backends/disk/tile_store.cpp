@@ -60,14 +60,7 @@ void TileStore::open_manifest(const std::string& path) {
   state_ = m.state;
   for (const ManifestTile& t : m.tiles) {
     const std::string tile_path = dir_.tile_path(t.key, t.generation);
-    if (!checked(tile_path, [&] { check_named_tile(t, tile_path, path); })) continue;
-    TileImage& image = images_[t.key];
-    image.committed = true;
-    image.generation = t.generation;
-    image.committed_bytes = t.bytes;
-    image.committed_known = image.known = static_cast<std::size_t>(t.known);
-    image.header_crc = t.header_crc;
-    committed_bytes_ += t.bytes;
+    if (checked(tile_path, [&] { check_named_tile(t, tile_path, path); })) adopt(t);
   }
   std::unordered_set<std::string> retired_names;
   for (const RetiredFile& r : m.retired) retired_names.insert(tile_file_name(r.key, r.generation));
@@ -92,32 +85,28 @@ void TileStore::open_manifest(const std::string& path) {
 // with a sound header that matches the manifest.
 void TileStore::check_named_tile(const ManifestTile& t, const std::string& tile_path,
                                  const std::string& path) const {
-  {
-    struct stat st {};
-    if (::stat(tile_path.c_str(), &st) != 0) {
-      const int err = errno;
-      if (err != ENOENT)
-        throw StorageError(StorageError::Kind::kIo, tile_path,
-                           "iwlomap: cannot read " + tile_path + ": " + std::strerror(err));
-      throw StorageError(StorageError::Kind::kCorrupt, tile_path,
-                         "iwlomap: tile file " + tile_path + " is missing: the map's manifest " + path +
-                             " names it (deleted or moved away?); 'iwlomap repair " + dir_.path() +
-                             "' makes a map of the other tiles");
-    }
-    if (!S_ISREG(st.st_mode))
-      throw StorageError(StorageError::Kind::kCorrupt, tile_path,
-                         "iwlomap: tile file " + tile_path + " is not a regular file (the map's manifest " + path +
-                             " names it)");
-    // The header too (a small read per tile): a damaged map fails here, before anything changes.
-    std::uint64_t size = 0;
-    const std::vector<std::uint8_t> head = read_file_prefix(tile_path, kTileHeaderBytes, size);
-    const TileHeader h = parse_tile_header(head.data(), head.size(), size, resolution_, tile_voxels_, t.key, tile_path);
-    if (size != t.bytes || h.header_crc != t.header_crc || h.known_voxels != t.known)
-      throw_corrupt(tile_path, "it is not the file the map's manifest " + path + " names (" + std::to_string(size) +
-                                   " bytes, header CRC-32 " + hex32(h.header_crc) + "; the manifest says " +
-                                   std::to_string(t.bytes) + " bytes, " + hex32(t.header_crc) +
-                                   "): replaced by another file?");
+  struct stat st {};
+  if (::stat(tile_path.c_str(), &st) != 0) {
+    const int err = errno;
+    if (err != ENOENT)
+      throw StorageError(StorageError::Kind::kIo, tile_path, "iwlomap: cannot read " + tile_path + ": " + std::strerror(err));
+    throw StorageError(StorageError::Kind::kCorrupt, tile_path,
+                       "iwlomap: tile file " + tile_path + " is missing: the map's manifest " + path +
+                           " names it (deleted or moved away?); 'iwlomap repair " + dir_.path() +
+                           "' makes a map of the other tiles");
   }
+  if (!S_ISREG(st.st_mode))
+    throw StorageError(StorageError::Kind::kCorrupt, tile_path,
+                       "iwlomap: tile file " + tile_path + " is not a regular file (the map's manifest " + path +
+                           " names it)");
+  // The header too (a small read per tile): a damaged map fails here, before anything changes.
+  std::uint64_t size = 0;
+  const TileHeader h = read_tile_header(tile_path, resolution_, tile_voxels_, t.key, size);
+  if (size != t.bytes || h.header_crc != t.header_crc || h.known_voxels != t.known)
+    throw_corrupt(tile_path, "it is not the file the map's manifest " + path + " names (" + std::to_string(size) +
+                                 " bytes, header CRC-32 " + hex32(h.header_crc) + "; the manifest says " +
+                                 std::to_string(t.bytes) + " bytes, " + hex32(t.header_crc) +
+                                 "): replaced by another file?");
 }
 
 // A map written before manifests: its tile files are the map; files of a generation were written
@@ -131,18 +120,26 @@ void TileStore::open_listed() {
     const std::string path = dir_.path_of(f.name);
     std::uint64_t size = 0;
     TileHeader h;
-    if (!checked(path, [&] {
-          const std::vector<std::uint8_t> head = read_file_prefix(path, kTileHeaderBytes, size);
-          h = parse_tile_header(head.data(), head.size(), size, resolution_, tile_voxels_, f.key, path);
-        }))
-      continue;
-    TileImage& image = images_[f.key];
-    image.committed = true;
-    image.committed_bytes = size;
-    image.committed_known = image.known = static_cast<std::size_t>(h.known_voxels);
-    image.header_crc = h.header_crc;
-    committed_bytes_ += size;
+    if (checked(path, [&] { h = read_tile_header(path, resolution_, tile_voxels_, f.key, size); }))
+      adopt({f.key, 0, size, h.known_voxels, h.header_crc});
   }
+}
+
+// Makes \p t the tile's committed file (its staged image, if any, is dropped).
+void TileStore::adopt(const ManifestTile& t) {
+  TileImage& image = images_[t.key];
+  committed_bytes_ -= image.committed ? image.committed_bytes : 0;
+  image.committed = true;
+  image.generation = t.generation;
+  image.committed_bytes = t.bytes;
+  image.committed_known = image.known = static_cast<std::size_t>(t.known);
+  image.header_crc = t.header_crc;
+  committed_bytes_ += t.bytes;
+  unstage(image);
+}
+
+ManifestTile TileStore::entry_of(const VoxelKey& key, const TileImage& image) {
+  return {key, image.generation, image.committed_bytes, image.committed_known, image.header_crc};
 }
 
 TileStore::~TileStore() {
@@ -165,9 +162,8 @@ MapManifest TileStore::committed_manifest() const {
   m.commit = commit_;
   m.state = state_;
   for (const auto& [k, image] : images_)
-    if (image.committed)
-      m.tiles.push_back({k, image.generation, image.committed_bytes, image.committed_known, image.header_crc});
-  std::sort(m.tiles.begin(), m.tiles.end(), [](const ManifestTile& a, const ManifestTile& b) { return a.key < b.key; });
+    if (image.committed) m.tiles.push_back(entry_of(k, image));
+  sort_by_tile(m.tiles);
   return m;
 }
 
@@ -255,7 +251,7 @@ void TileStore::write(const VoxelKey& key, const std::vector<std::uint8_t>& enco
                                 [&](const RetiredFile& r) { return r.key == key && r.generation == generation; }),
                  retired_.end());
   write_temp_file(path, path, encoded, true);
-  written_.push_back({key, encoded.size(), known, load_u32(encoded.data() + kTileHeaderBytes - 4)});
+  written_.push_back({key, generation, encoded.size(), known, load_u32(encoded.data() + kTileHeaderBytes - 4)});
 }
 
 void TileStore::write_staged(const VoxelKey& key, std::vector<std::uint8_t>& image_buffer, DenseBlock& check_block) {
@@ -281,20 +277,19 @@ void TileStore::commit(const MapState& state, bool drop_all) {
   m.state = state;
   m.retired = retired_;
   std::unordered_set<VoxelKey, VoxelKeyHash> rewritten;
-  for (const Written& w : written_) rewritten.insert(w.key);
+  for (const ManifestTile& w : written_) rewritten.insert(w.key);
   for (const auto& [k, image] : images_) {
     if (!image.committed) continue;
     if (drop_all || rewritten.count(k) != 0)
       m.retired.push_back({k, image.generation});
     else
-      m.tiles.push_back({k, image.generation, image.committed_bytes, image.committed_known, image.header_crc});
+      m.tiles.push_back(entry_of(k, image));
   }
-  for (const Written& w : written_) m.tiles.push_back({w.key, generation, w.bytes, w.known, w.header_crc});
-  std::sort(m.tiles.begin(), m.tiles.end(), [](const ManifestTile& a, const ManifestTile& b) { return a.key < b.key; });
+  m.tiles.insert(m.tiles.end(), written_.begin(), written_.end());
+  sort_by_tile(m.tiles);
   const std::vector<std::uint8_t> bytes = encode_manifest(m);
   const std::string path = dir_.path_of(kManifestName);
-  write_temp_file(path + kTempSuffix, path, bytes, true);
-  commit_temp_file(path + kTempSuffix, path, true);  // the commit
+  write_file_durably(path + kTempSuffix, path, bytes);  // the rename is the commit
 
   commit_ = generation;
   state_ = state;
@@ -305,17 +300,7 @@ void TileStore::commit(const MapState& state, bool drop_all) {
     images_.clear();
     committed_bytes_ = 0;
   }
-  for (const Written& w : written_) {
-    TileImage& image = images_[w.key];
-    committed_bytes_ -= image.committed ? image.committed_bytes : 0;
-    image.committed = true;
-    image.generation = generation;
-    image.committed_bytes = w.bytes;
-    image.committed_known = image.known = w.known;
-    image.header_crc = w.header_crc;
-    committed_bytes_ += w.bytes;
-    unstage(image);
-  }
+  for (const ManifestTile& w : written_) adopt(w);
   written_.clear();
   drop_staging_if_unused();
   sync_directory(dir_.path());  // on failure the commit stands; the next one makes it durable
@@ -323,7 +308,7 @@ void TileStore::commit(const MapState& state, bool drop_all) {
 }
 
 void TileStore::abort() noexcept {
-  for (const Written& w : written_) ::unlink(dir_.tile_path(w.key, commit_ + 1).c_str());
+  for (const ManifestTile& w : written_) ::unlink(dir_.tile_path(w.key, w.generation).c_str());
   written_.clear();
 }
 
@@ -367,7 +352,7 @@ std::vector<std::string> TileStore::set_aside_damaged() {
   fs::create_directories(aside, ec);
   if (ec) throw StorageError(StorageError::Kind::kIo, aside.string(), "iwlomap: cannot create " + aside.string() + ": " + ec.message());
   for (Damage& d : damage_) {
-    d.what = d.what.substr(0, d.what.find(" (the file is left as it is"));  // the advice is being taken
+    d.what = d.what.substr(0, d.what.find(kCorruptAdvice));  // the advice is being taken
     const fs::path from(d.file);
     if (!fs::exists(fs::symlink_status(from, ec))) {
       lines.push_back("forgotten (missing): " + d.what);

@@ -104,12 +104,6 @@ class TileStore {
   [[nodiscard]] std::size_t known() const noexcept;
 
  private:
-  struct Written {
-    VoxelKey key;
-    std::uint64_t bytes;
-    std::size_t known;
-    std::uint32_t header_crc;
-  };
   struct Damage {
     std::string file;  // path
     std::string what;  // the error's message
@@ -117,6 +111,8 @@ class TileStore {
   void open_manifest(const std::string& path);
   void check_named_tile(const ManifestTile& t, const std::string& tile_path, const std::string& path) const;
   void open_listed();
+  void adopt(const ManifestTile& t);
+  [[nodiscard]] static ManifestTile entry_of(const VoxelKey& key, const TileImage& image);
   // Runs \p check; with collect_damage_, a kCorrupt StorageError is noted for \p file instead.
   template <class Check>
   bool checked(const std::string& file, Check&& check);
@@ -131,7 +127,7 @@ class TileStore {
   std::unordered_map<VoxelKey, TileImage, VoxelKeyHash> images_;
   std::uint64_t commit_ = 0;  // the last commit's number
   MapState state_;
-  std::vector<Written> written_;        // since the last commit
+  std::vector<ManifestTile> written_;   // files written since the last commit
   std::vector<RetiredFile> retired_;    // files no commit names, not yet removed
   bool collect_damage_ = false;
   std::vector<Damage> damage_;
