@@ -29,15 +29,13 @@ namespace {
 // A scan of rings x columns points, checked against the memory budget before anything is made:
 // about 100 bytes a point (the scan as doubles, the PCL cloud, the file buffer).
 void check_scan_size(long rings, long columns) {
-  const double bytes = 100.0 * static_cast<double>(rings) * static_cast<double>(columns);
-  const double budget = static_cast<double>(default_memory_limit());
-  if (bytes > budget) {
-    std::ostringstream m;
-    m << std::setprecision(3) << "--rings " << rings << " x --columns " << columns << " is "
-      << static_cast<double>(rings) * static_cast<double>(columns) << " points, about " << bytes / 1e9
-      << " GB, more than the memory budget of " << budget / 1e9 << " GB (3/4 of the memory, or of what ulimit -v leaves)";
-    throw UsageError(m.str());
-  }
+  const double points = static_cast<double>(rings) * static_cast<double>(columns);
+  const std::string beyond = beyond_memory_budget(100.0 * points);
+  if (beyond.empty()) return;
+  std::ostringstream m;
+  m << std::setprecision(3) << "--rings " << rings << " x --columns " << columns << " is " << points << " points, "
+    << beyond;
+  throw UsageError(m.str());
 }
 const char* kHelp = R"(usage: iwlomap generate -o OUT.pcd [options]
        iwlomap generate --street-loop DIR [options]

@@ -323,14 +323,9 @@ int run_pyramid(const std::vector<std::string>& argv) {
     stack_bytes += 2.0 * cells;  // the level and the buffer that builds it
     level_bytes = std::max(level_bytes, 6.0 * cells);
   }
-  const double budget = static_cast<double>(default_memory_limit());
-  if (stack_bytes + level_bytes > budget) {
-    std::ostringstream m;
-    m << std::setprecision(3) << levels << " levels over a " << base.size().x() << " x " << base.size().y()
-      << " base grid need about " << (stack_bytes + level_bytes) / 1e9 << " GB, more than the memory budget of "
-      << budget / 1e9 << " GB (3/4 of the memory, or of what ulimit -v leaves); give fewer --levels";
-    throw std::runtime_error(m.str());
-  }
+  if (const std::string beyond = beyond_memory_budget(stack_bytes + level_bytes); !beyond.empty())
+    throw std::runtime_error(std::to_string(levels) + " levels over a " + std::to_string(base.size().x()) + " x " +
+                             std::to_string(base.size().y()) + " base grid need " + beyond + "; give fewer --levels");
   const PrecomputationStack2D stack(base, static_cast<int>(levels));
 
   for (int k = 0; k < stack.num_levels(); ++k) {

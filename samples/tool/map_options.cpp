@@ -13,6 +13,8 @@
 #include <iostream>
 #include <filesystem>
 #include <cctype>
+#include <iomanip>
+#include <sstream>
 #include <charconv>
 #include <cstdio>
 #include <limits>
@@ -89,6 +91,15 @@ std::size_t default_memory_limit() {
     limit = limit == 0 ? left : std::min(limit, left);
   }
   return limit;
+}
+
+std::string beyond_memory_budget(double bytes) {
+  const double budget = static_cast<double>(default_memory_limit());
+  if (bytes <= budget) return {};
+  std::ostringstream m;
+  m << std::setprecision(3) << "about " << bytes / 1e9 << " GB, more than the memory budget of " << budget / 1e9
+    << " GB (3/4 of the memory, or of what ulimit -v leaves)";
+  return m.str();
 }
 
 std::size_t parse_memory_size(const std::string& text) {

@@ -41,6 +41,9 @@ struct MapSetup {
 /// The --max-memory default: 3/4 of the physical memory, or half of the address space left under
 /// RLIMIT_AS when that is less.
 [[nodiscard]] std::size_t default_memory_limit();
+/// When \p bytes pass default_memory_limit(): "about X GB, more than the memory budget of Y GB
+/// (...)", for a refusal before anything is allocated; else empty.
+[[nodiscard]] std::string beyond_memory_budget(double bytes);
 /// A --max-memory value: bytes, with an optional K, M, G or T suffix (powers of 1024); 'none' is 0.
 [[nodiscard]] std::size_t parse_memory_size(const std::string& text);
 
