@@ -4,6 +4,7 @@
 // never by calling the library's own functions.
 
 #include "iwlomap/iwlo.h"
+#include "model/probability_above.h"
 
 #include <gtest/gtest.h>
 
@@ -11,6 +12,7 @@
 #include <cstdint>
 #include <functional>
 #include <limits>
+#include <random>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -348,6 +350,37 @@ TEST(IwloParams, ValidateAcceptsWhenValuesOnInclusiveBoundaries) {
   p.intensity_threshold = 0.0;  // every positive return a hit
   p.intensity_max = 255.0;
   EXPECT_NO_THROW(p.validate());
+}
+
+// ProbabilityAbove decides probability(l) > t mostly from l alone; it must agree with the
+// probability itself for every l, including the floats next to the boundary and thresholds so
+// close to 0 or 1 that many log-odds round to the same probability.
+TEST(IwloProbabilityAbove, AgreesWithTheProbabilityAtAndAroundEveryThreshold) {
+  std::mt19937 rng(5);
+  std::size_t above = 0, checked = 0;
+  for (const double t : {0.5, 0.7, 0.12, 0.97, 1e-12, 1.0 - 1e-12, 1e-300, 0.999999999999999, 1.0, 0.0}) {
+    const detail::ProbabilityAbove test(t);
+    const double b = (t > 0.0 && t < 1.0) ? iwlo::log_odds(t) : 0.0;
+    std::vector<float> ls;
+    float f = static_cast<float>(b);
+    float g = f;
+    for (int i = 0; i < 2000; ++i) {  // the floats on both sides of the boundary
+      ls.push_back(f);
+      ls.push_back(g);
+      f = std::nextafter(f, -std::numeric_limits<float>::infinity());
+      g = std::nextafter(g, std::numeric_limits<float>::infinity());
+    }
+    std::uniform_real_distribution<double> spread(-40.0, 40.0);
+    for (int i = 0; i < 20000; ++i) ls.push_back(static_cast<float>(b + spread(rng)));
+    for (const float l : ls) {
+      const bool expected = iwlo::probability(l) > t;
+      ASSERT_EQ(test(l), expected) << "threshold " << t << ", log-odds " << l;
+      above += expected ? 1 : 0;
+      ++checked;
+    }
+  }
+  EXPECT_GT(above, checked / 4);  // both answers occur
+  EXPECT_LT(above, 3 * checked / 4);
 }
 
 }  // namespace

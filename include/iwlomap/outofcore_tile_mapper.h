@@ -15,6 +15,10 @@
 
 namespace iwlomap {
 
+namespace detail {
+struct BackendAccess;
+}  // namespace detail
+
 /// A map directory or tile file that cannot be used. The message names the file; path() returns
 /// it alone, and kind() says what went wrong, so a caller can tell a full disk from a damaged map.
 class StorageError : public std::runtime_error {
@@ -265,6 +269,7 @@ class OutofcoreTileMapper final : public BackendBase {
   void modify_params(const std::function<void(IwloParams&)>& change) override;
 
  private:
+  friend struct detail::BackendAccess;  // the library's own layers (the OctoMap writer)
   struct Impl;
   OutofcoreTileMapper(std::unique_ptr<Impl> impl);
   Impl& impl();

@@ -81,7 +81,7 @@ class ProbabilityUpdater final : public BackendBase {
   size_t prune() override;
 
  private:
-  friend struct detail::BackendAccess;  // the library's own layers (the distributed mapper)
+  friend struct detail::BackendAccess;  // the library's own layers (distributed mapper, writers)
   struct Impl;
   Impl& impl();
   const Impl& impl() const;

@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "octomap_files.h"
 
+#include "octree_writer.h"
+
 #include "console_capture.h"
 #include "iwlomap/octree_mapper.h"
 #include "model/checks.h"
@@ -290,27 +292,28 @@ void set_tree_voxels(const octomap::OcTree& tree, IMapperBackend& map) {
   flush();
 }
 
-// Writes \p tree to a temporary file next to \p path and renames it over \p path.
-void write_tree(const octomap::OcTree& tree, FileFormat f, const std::string& path, const char* caller) {
+void write_file(const std::string& path, const char* caller, const std::function<bool(std::ostream&)>& write,
+                const std::string* octomap_output) {
   const std::string tmp = path + ".part";
   std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
   if (!out)
     throw std::runtime_error(std::string("iwlomap: ") + caller + ": cannot write OctoMap file '" + path +
                              "': cannot create '" + tmp + "': " + std::strerror(errno));
-  bool ok;
-  std::string said;
-  {
-    ConsoleCapture capture;
-    ok = f == FileFormat::kBinary ? tree.writeBinaryConst(out) : tree.write(out);
+  bool ok = false;
+  try {
+    ok = write(out);
     out.flush();
-    said = capture.finish();
+    out.close();
+  } catch (...) {
+    out.close();
+    std::remove(tmp.c_str());
+    throw;
   }
-  out.close();
   if (!ok || !out) {
     const int err = errno;
     std::remove(tmp.c_str());
     throw std::runtime_error(std::string("iwlomap: ") + caller + ": writing OctoMap file '" + path + "' failed: " +
-                             std::strerror(err) + octomap_said(said));
+                             std::strerror(err) + (octomap_output ? octomap_said(*octomap_output) : std::string()));
   }
   if (std::rename(tmp.c_str(), path.c_str()) != 0) {
     const int err = errno;
@@ -318,6 +321,20 @@ void write_tree(const octomap::OcTree& tree, FileFormat f, const std::string& pa
     throw std::runtime_error(std::string("iwlomap: ") + caller + ": cannot move '" + tmp + "' to '" + path +
                              "': " + std::strerror(err));
   }
+}
+
+void write_tree(const octomap::OcTree& tree, FileFormat f, const std::string& path, const char* caller) {
+  std::string said;
+  write_file(
+      path, caller,
+      [&](std::ostream& out) {
+        ConsoleCapture capture;
+        const bool ok = f == FileFormat::kBinary ? tree.writeBinaryConst(out) : tree.write(out);
+        out.flush();
+        said = capture.finish();
+        return ok;
+      },
+      &said);
 }
 
 }  // namespace detail
@@ -331,23 +348,9 @@ void export_octomap(const IMapperBackend& map, const std::string& path, double o
   if (!(occupied_threshold > 0.0 && occupied_threshold < 1.0))
     throw std::invalid_argument("iwlomap: export_octomap: " + detail::describe("occupied_threshold", occupied_threshold) +
                                 " is not in (0, 1)");
-  const double threshold = occupied_threshold;
-  octomap::OcTree tree(map.get_resolution());
-  const float occupied = tree.getClampingThresMaxLog();
-  const float free = tree.getClampingThresMinLog();
-  map.for_each_voxel([&](const VoxelKey& k, const VoxelState& v) {
-    if (!detail::in_octomap_range(k))
-      throw std::out_of_range("iwlomap: export_octomap('" + path + "'): voxel " + detail::describe_key(k) +
-                              " lies outside OctoMap's key range [" + std::to_string(detail::kMinKey) + ", " +
-                              std::to_string(detail::kMaxKey) + "] per axis; an OctoMap file cannot hold it");
-    // .bt holds occupancy only: maximum likelihood, as OctoMap's own writeBinary() stores it.
-    const float value =
-        f == detail::FileFormat::kFull ? static_cast<float>(v.log_odds) : (v.probability > threshold ? occupied : free);
-    detail::set_leaf(tree, k, value);
-  });
-  tree.updateInnerOccupancy();
-  tree.prune();
-  detail::write_tree(tree, f, path, "export_octomap");
+  detail::OctreeStream stream(map, f, occupied_threshold, path);
+  detail::write_file(path, "export_octomap",
+                     [&](std::ostream& out) { return stream.write(out, map.get_resolution()); });
 }
 
 void import_octomap(const std::string& path, IMapperBackend& map) {

@@ -9,7 +9,9 @@
 
 #include <octomap/OcTree.h>
 
+#include <functional>
 #include <memory>
+#include <ostream>
 #include <string>
 #include <utility>
 
@@ -34,6 +36,12 @@ struct LoadedTree {
 
 /// Feeds every voxel of \p tree to map.set_log_odds() in batches.
 void set_tree_voxels(const octomap::OcTree& tree, IMapperBackend& map);
+
+/// Calls write(stream) on a temporary file next to \p path and renames it over \p path; the
+/// temporary file is removed when write() returns false or throws, or the stream fails.
+/// \p octomap_output holds what OctoMap printed meanwhile, for the error message.
+void write_file(const std::string& path, const char* caller, const std::function<bool(std::ostream&)>& write,
+                const std::string* octomap_output = nullptr);
 
 /// Writes \p tree to a temporary file next to \p path and renames it over \p path.
 void write_tree(const octomap::OcTree& tree, FileFormat f, const std::string& path, const char* caller);

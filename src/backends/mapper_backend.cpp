@@ -8,6 +8,7 @@
 #include "iwlomap/voxel_box.h"
 
 #include <algorithm>
+#include <memory>
 #include <cstdint>
 #include <limits>
 #include <optional>
@@ -81,6 +82,19 @@ void detail::BackendAccess::apply_collected_scan(IMapperBackend& map, const Scan
     apply_to_ram(*ram, scratch);
   else
     apply_scratch_by_batches(map, scratch);
+}
+
+void detail::BackendAccess::for_each_known_block(const IMapperBackend& map, const KnownBlockVisit& visit) {
+  if (const auto* ram = dynamic_cast<const ProbabilityUpdater*>(&map)) {
+    for_each_known_block_ram(*ram, visit);
+  } else if (const auto* disk = dynamic_cast<const OutofcoreTileMapper*>(&map)) {
+    for_each_known_block_disk(*disk, visit);
+  } else {
+    auto group = std::make_unique<KnownBlockGrouper>(visit);
+    map.for_each_voxel(
+        [&group](const VoxelKey& k, const VoxelState& v) { group->add(k, static_cast<float>(v.log_odds)); });
+    group->finish();
+  }
 }
 
 std::optional<VoxelState> IMapperBackend::query(const Eigen::Vector3d&) const {

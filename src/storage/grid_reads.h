@@ -5,6 +5,7 @@
 // exact IWLO state in one (RAM, OctoMap), so that their answers cannot drift apart.
 
 #include "model/checks.h"
+#include "model/probability_above.h"
 #include "storage/block_grid.h"
 #include "iwlomap/iwlo.h"
 #include "iwlomap/voxel_state.h"
@@ -39,9 +40,10 @@ void for_each_known(const BlockGrid& grid, Fn&& fn) {
 template <class ForEachKnown, class Position>
 [[nodiscard]] std::vector<double> occupied_rows(ForEachKnown&& for_each_known, double threshold, Position&& position) {
   std::vector<double> rows;
+  const ProbabilityAbove above(threshold);
   for_each_known([&](const VoxelKey& key, const Voxel& v) {
+    if (!above(v.log_odds)) return;
     const double p = iwlo::probability(v.log_odds);
-    if (!(p > threshold)) return;
     const Eigen::Vector3d x = position(key);
     rows.insert(rows.end(), {x.x(), x.y(), x.z(), p});
   });

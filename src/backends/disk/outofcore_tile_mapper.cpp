@@ -1,9 +1,12 @@
 // SPDX-License-Identifier: BSD-3-Clause
 // The Disk backend's public methods: each takes the lock once and calls into its Impl
 // (disk_map_impl.h).
+#include "backends/backend_access.h"
 #include "backends/disk/disk_map_impl.h"
 
 #include "backends/pimpl.h"
+
+#include <memory>
 
 namespace iwlomap {
 
@@ -165,6 +168,15 @@ void OutofcoreTileMapper::for_each_voxel(const std::function<void(const VoxelKey
   Impl& m = *impl_;
   std::lock_guard<std::mutex> lock(m.mutex);
   m.for_each_known([&](const VoxelKey& key, const detail::Voxel& v) { visit(key, detail::state_of(v)); });
+}
+
+void detail::BackendAccess::for_each_known_block_disk(const OutofcoreTileMapper& map, const KnownBlockVisit& visit) {
+  (void)map.impl();
+  OutofcoreTileMapper::Impl& m = *map.impl_;
+  std::lock_guard<std::mutex> lock(m.mutex);
+  auto group = std::make_unique<detail::KnownBlockGrouper>(visit);
+  m.for_each_known([&group](const VoxelKey& key, const detail::Voxel& v) { group->add(key, v.log_odds); });
+  group->finish();
 }
 
 MemoryStats OutofcoreTileMapper::get_memory_usage() const {

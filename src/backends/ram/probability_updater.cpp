@@ -176,6 +176,21 @@ void ProbabilityUpdater::for_each_voxel(const std::function<void(const VoxelKey&
   detail::for_each_state(impl().grid, visit);
 }
 
+void detail::BackendAccess::for_each_known_block_ram(const ProbabilityUpdater& map, const KnownBlockVisit& visit) {
+  std::uint16_t index[detail::kBlockVoxels];
+  float log_odds[detail::kBlockVoxels];
+  for (const detail::VoxelBlock* b : map.impl().grid.blocks()) {
+    if (b->known == 0) continue;
+    std::size_t n = 0;
+    b->for_each_slot([&](int i, const detail::Voxel& v) {  // branch-free: unknown slots are overwritten
+      index[n] = static_cast<std::uint16_t>(i);
+      log_odds[n] = v.log_odds;
+      n += v.count != 0 ? 1 : 0;
+    });
+    visit(b->key, index, log_odds, n);
+  }
+}
+
 void ProbabilityUpdater::set_hit_accumulation(bool enabled) { impl().hits.set_enabled(enabled); }
 
 bool ProbabilityUpdater::get_hit_accumulation() const { return impl().hits.enabled(); }
