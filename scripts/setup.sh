@@ -10,7 +10,7 @@ PACKAGES=(build-essential cmake git pkg-config
   octomap-tools pcl-tools xvfb xauth doxygen
   clang libclang-rt-14-dev ccache
   libceres-dev
-  python3-dev python3-pybind11 python3-numpy python3-pytest)
+  python3-dev python3-pybind11 python3-numpy python3-pytest python3-pip python3-setuptools python3-wheel)
 
 missing=()
 for p in "${PACKAGES[@]}"; do

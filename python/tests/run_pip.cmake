@@ -1,0 +1,24 @@
+# SPDX-License-Identifier: BSD-3-Clause
+# `pip install --no-build-isolation .` from the source tree, offline (Debian's setuptools and
+# wheel), into WORK/target; then imports the package from a Python run outside the source and
+# build trees, with only PYTHONPATH pointing at it, and maps a point.
+# Usage: cmake -DSOURCE_DIR=... -DWORK=... -DPYTHON=... -P run_pip.cmake
+file(REMOVE_RECURSE "${WORK}/target")
+file(MAKE_DIRECTORY "${WORK}")
+execute_process(COMMAND ${CMAKE_COMMAND} -E env "IWLOMAP_PIP_BUILD_DIR=${WORK}/build" PIP_NO_INDEX=1
+          ${PYTHON} -m pip install --no-build-isolation --no-deps --no-input --target "${WORK}/target" "${SOURCE_DIR}"
+  RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+if(rc)
+  message(FATAL_ERROR "pip install failed (${rc}):\n${out}\n${err}")
+endif()
+file(GLOB module "${WORK}/target/iwlomap/_iwlomap*.so")
+if(NOT module OR NOT EXISTS "${WORK}/target/iwlomap/__init__.pyi")
+  message(FATAL_ERROR "pip installed no extension module or stubs in ${WORK}/target/iwlomap")
+endif()
+execute_process(COMMAND ${CMAKE_COMMAND} -E env "PYTHONPATH=${WORK}/target" ${PYTHON} -c
+  "import iwlomap, numpy as np, os; assert iwlomap.__file__.startswith(os.environ['PYTHONPATH']), iwlomap.__file__; m = iwlomap.ProbabilityUpdater(0.1); m.batch_update_iwlo(np.zeros((1, 3)), np.array([200.0]), np.array([True])); print(iwlomap.__version__, m.get_num_nodes())"
+  WORKING_DIRECTORY "${WORK}" RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+if(rc OR NOT out MATCHES " 1\n")
+  message(FATAL_ERROR "the pip-installed package does not import and map (${rc}): ${out}${err}")
+endif()
+message(STATUS "pip-installed package: ${out}")
