@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// An off-screen PNG of a map: no window opens (on a machine without a screen, run it under
-// xvfb-run -a -s "-screen 0 1280x1024x24 -noreset").
+// An off-screen PNG of a map: no window opens, and no screen is needed (without $DISPLAY the
+// renderer starts its own virtual X server, Xvfb).
 //
 //   snapshot OUT.png
 #include <iwlomap/probability_updater.h>
@@ -22,7 +22,8 @@ int main(int argc, char** argv) {
 
   iwlomap::viewer::SnapshotOptions options;  // 1280 x 960, coloured by height, with a colour bar
   options.title = "synthetic courtyard, 0.1 m";
-  // Throws std::runtime_error with a hint when no X display can be opened.
+  // Throws iwlomap::viewer::DisplayError (a std::runtime_error) saying what to install when
+  // neither $DISPLAY nor Xvfb can be used.
   iwlomap::viewer::SnapshotRenderer::render_png(map, options, argv[1]);
   std::cout << "wrote " << argv[1] << "\n";
   return 0;

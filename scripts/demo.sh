@@ -20,7 +20,6 @@ if [ $# -eq 0 ]; then
 fi
 # The snapshot is rendered off screen; VTK needs an X server, so a virtual one is used when
 # there is no display.
-RUN=()
-[ -n "${DISPLAY:-}" ] || RUN=(xvfb-run -a -s "-screen 0 1280x1024x24 -noreset")
-"${RUN[@]}" "$TOOL" map "$@" -o out/occupied.pcd --octomap out/map.bt --snapshot out/snapshot.png
+# The snapshot needs no screen: without $DISPLAY the renderer starts its own Xvfb.
+"$TOOL" map "$@" -o out/occupied.pcd --octomap out/map.bt --snapshot out/snapshot.png
 "$TOOL" info out/occupied.pcd

@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
 // SnapshotRenderer on known scenes, checked pixel by pixel. Needs an X display: the suite runs
-// under xvfb-run -a -s "-screen 0 1280x1024x24 -noreset" (scripts/test.sh); the no-display test
-// removes DISPLAY in a child process.
+// under xvfb-run -a -s "-screen 0 1280x1024x24 -noreset" (scripts/test.sh); the no-display tests
+// remove DISPLAY in a child process, where the renderer starts its own Xvfb.
 //
 // Where pixels are predicted, the scene is seen from the top with a parallel projection, no
 // colour bar, no title and no lighting, so (as SnapshotOptions documents) the bounding box of the
@@ -494,10 +494,12 @@ TEST(CloudToVoxels, TakesIntensityAsProbabilityOrTheDefault) {
 }
 #endif
 
-/// Runs \p display_value (nullptr: unset) as DISPLAY in a child process, renders there, and
-/// returns how the child ended: 0 DisplayError naming xvfb-run, 1 another message, 2 no exception,
-/// 3 another exception; a signal (e.g. VTK's abort()) shows as 128 + signal.
-int render_in_child_with_display(const char* display_value) {
+/// Runs \p display_value (nullptr: unset) as DISPLAY and \p xvfb (nullptr: unset) as IWLOMAP_XVFB
+/// in a child process, renders a few voxels there, and returns how the child ended: 0 an image
+/// with the voxels drawn, 4 a blank image, 5 DisplayError naming xvfb-run and Xvfb's absence,
+/// 1 another DisplayError message, 3 another exception; a signal (e.g. VTK's abort()) shows as
+/// 128 + signal.
+int render_in_child(const char* display_value, const char* xvfb) {
   std::fflush(nullptr);
   const pid_t pid = fork();
   if (pid == 0) {
@@ -505,16 +507,30 @@ int render_in_child_with_display(const char* display_value) {
       unsetenv("DISPLAY");
     else
       setenv("DISPLAY", display_value, 1);
-    int code = 2;
+    if (xvfb == nullptr)
+      unsetenv("IWLOMAP_XVFB");
+    else
+      setenv("IWLOMAP_XVFB", xvfb, 1);
+    int code = 3;
     try {
-      (void)SnapshotRenderer::render(Eigen::MatrixXd::Zero(1, 4), 1.0, SnapshotOptions{});
+      Eigen::MatrixXd voxels(2, 4);
+      voxels << 0.0, 0.0, 0.0, 1.0, 4.0, 4.0, 0.0, 1.0;
+      SnapshotOptions o;
+      o.width = 160;
+      o.height = 120;
+      const RgbImage image = SnapshotRenderer::render(voxels, 1.0, o);
+      const auto background = image.pixel(0, 0);
+      code = 4;
+      for (int y = 0; y < image.height && code == 4; ++y)
+        for (int x = 0; x < image.width && code == 4; ++x)
+          if (image.pixel(x, y) != background) code = 0;
     } catch (const DisplayError& e) {
       const std::string msg = e.what();
       code = msg.find("xvfb-run -a -s \"-screen 0 1280x1024x24 -noreset\"") != std::string::npos &&
-                     msg.find("DISPLAY") != std::string::npos
-                 ? 0
+                     msg.find("DISPLAY") != std::string::npos && msg.find("not found") != std::string::npos
+                 ? 5
                  : 1;
-      if (code != 0) std::fprintf(stderr, "unexpected message: %s\n", e.what());
+      if (code != 5) std::fprintf(stderr, "unexpected message: %s\n", e.what());
     } catch (...) {
       code = 3;
     }
@@ -527,10 +543,15 @@ int render_in_child_with_display(const char* display_value) {
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
 
-TEST(SnapshotRenderer, NoDisplayThrowsDisplayErrorInsteadOfAborting) {
-  EXPECT_EQ(render_in_child_with_display(nullptr), 0) << "DISPLAY unset";
-  EXPECT_EQ(render_in_child_with_display(""), 0) << "DISPLAY empty";
-  EXPECT_EQ(render_in_child_with_display(":64999"), 0) << "DISPLAY of a server that does not exist";
+TEST(SnapshotRenderer, WithoutADisplayRendersThroughAPrivateVirtualXServer) {
+  EXPECT_EQ(render_in_child(nullptr, nullptr), 0) << "DISPLAY unset";
+  EXPECT_EQ(render_in_child("", nullptr), 0) << "DISPLAY empty";
+  EXPECT_EQ(render_in_child(":64999", nullptr), 0) << "DISPLAY of a server that does not exist";
+}
+
+TEST(SnapshotRenderer, WithoutADisplayOrXvfbThrowsDisplayErrorInsteadOfAborting) {
+  EXPECT_EQ(render_in_child(nullptr, "/nonexistent/Xvfb"), 5);
+  EXPECT_EQ(render_in_child(":64999", "/nonexistent/Xvfb"), 5);
 }
 
 TEST(SnapshotRenderer, CheckDisplaySucceedsWhenADisplayIsAvailable) {

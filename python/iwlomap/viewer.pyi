@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: BSD-3-Clause
-# Off-screen snapshots (present when iwlomap.HAS_VIEWER; needs an X display).
+# Off-screen snapshots (present when iwlomap.HAS_VIEWER; through $DISPLAY, else a private Xvfb).
 import enum
 import os
 from typing import Optional, Tuple, Union

@@ -109,7 +109,7 @@ void bind_viewer(py::module_& m) {
       },
       py::arg("image"), py::arg("path"), "Writes an (H, W, 3) uint8 image as PNG.");
   v.def("check_display", &viewer::SnapshotRenderer::check_display,
-        "Raises DisplayError when no X display can be opened.");
+        "Raises DisplayError when neither $DISPLAY nor a private Xvfb can be used.");
 }
 
 }  // namespace iwlomap::python

@@ -1,7 +1,10 @@
 # SPDX-License-Identifier: BSD-3-Clause
-"""The snapshot renderer from Python (needs an X display: the test command runs under xvfb-run)."""
+"""The snapshot renderer from Python (the test command runs under xvfb-run; without a display the
+renderer starts its own Xvfb, which one test checks in a child process)."""
 
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -38,3 +41,20 @@ def test_render_returns_an_image_and_writes_a_png(tmp_path):
     o.width = 8
     with pytest.raises(ValueError, match="width"):
         v.render(voxels, 1.0, o)
+
+
+def test_render_without_a_display_uses_a_private_virtual_x_server(tmp_path):
+    script = (
+        "import numpy as np, iwlomap\n"
+        "o = iwlomap.viewer.SnapshotOptions(); o.width, o.height = 120, 90\n"
+        "image = iwlomap.viewer.render(np.array([[0.0, 0, 0, 1], [3, 3, 0, 1]]), 1.0, o)\n"
+        "assert (image != image[0, 0]).any(), 'blank image'\n"
+        f"iwlomap.viewer.write_png(image, {str(tmp_path / 'headless.png')!r})\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "IWLOMAP_XVFB")}
+    run = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert (tmp_path / "headless.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    env["IWLOMAP_XVFB"] = "/nonexistent/Xvfb"
+    run = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert run.returncode != 0 and "xvfb-run" in run.stderr and "not found" in run.stderr
+

@@ -38,8 +38,8 @@ tile directory, or a .bt/.ot OctoMap file with the OctoMap layer) is opened at i
 and its occupied voxels (p > 0.7) are drawn. A .pcd/.ply whose points lie on no voxel grid (a
 raw scan) is drawn as points of 2 pixels, unless --resolution is given.
 
-Rendering needs an X display. On a machine without a screen run the command under a virtual one:
-  xvfb-run -a -s "-screen 0 1280x1024x24 -noreset" iwlomap render ...
+Rendering goes through an X server: $DISPLAY when it can be opened, else a private virtual one
+(Xvfb, Debian package xvfb) that the command starts and stops itself.
 
 output:
   -o, --output FILE           the PNG image to write

@@ -17,8 +17,8 @@ namespace iwlomap::tool {
 const char* map_outputs_help() {
   return R"(  --octomap FILE            also write the map as an OctoMap file: .bt (occupancy) or .ot (full
                             log-odds), for octovis, RViz and OctoMap's tools
-  --snapshot FILE           also write a PNG snapshot of the occupied voxels (needs an X display;
-                            without a screen: xvfb-run -a -s "-screen 0 1280x1024x24 -noreset" ...)
+  --snapshot FILE           also write a PNG snapshot of the occupied voxels (through $DISPLAY,
+                            else a private Xvfb the command starts itself)
 )";
 }
 

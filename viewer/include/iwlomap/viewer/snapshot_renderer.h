@@ -6,14 +6,11 @@
 /// screen, with no window. VTK is used only in the implementation; this header needs Eigen and
 /// the standard library only.
 ///
-/// Display: Debian's VTK 9.1 renders only through an X server. On a machine without a screen run
-/// the program under a virtual one:
-///
-///     xvfb-run -a -s "-screen 0 1280x1024x24 -noreset" <program> ...
-///
-/// (`-noreset` keeps Xvfb from resetting between clients, which can abort a later render). When
-/// no display can be opened, every render call throws DisplayError before VTK touches X, instead
-/// of VTK aborting the process.
+/// Display: Debian's VTK 9.1 renders only through an X server. A render uses $DISPLAY when it can
+/// be opened; otherwise the first render of the process starts a private virtual X server (Xvfb,
+/// or the program $IWLOMAP_XVFB names) on a free display, kept until the process ends and killed
+/// with it. Only when neither works does a render throw DisplayError (naming $DISPLAY, why Xvfb
+/// could not be used, and xvfb-run) before VTK touches X, instead of VTK aborting the process.
 
 #include "iwlomap/mapper_backend.h"
 #include "iwlomap/viewer/color_map.h"
@@ -30,7 +27,7 @@
 
 namespace iwlomap::viewer {
 
-/// Thrown when no X display can be opened; the message names $DISPLAY and says to use xvfb-run.
+/// Thrown when neither $DISPLAY nor a private Xvfb can be used; the message names both.
 struct DisplayError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
@@ -155,8 +152,8 @@ class SnapshotRenderer {
   static void render_png(IMapperBackend& map, const SnapshotOptions& options, const std::string& path,
                          double min_probability = -1.0);
 
-  /// Throws DisplayError when no X display can be opened (e.g. to fail before a long mapping run
-  /// rather than after it). Does nothing otherwise.
+  /// Throws DisplayError when neither $DISPLAY nor a private Xvfb can be used (e.g. to fail before
+  /// a long mapping run rather than after it); may start the private Xvfb. Does nothing otherwise.
   static void check_display();
 };
 
