@@ -84,14 +84,28 @@ std::uint64_t point_count(const pcl::PCLPointCloud2& blob) {
   return n;
 }
 
+// The intensity field: `intensity`, else the names other programs give it (CloudCompare writes a
+// scalar field as `scalar_<name>`).
+const pcl::PCLPointField* intensity_field(const pcl::PCLPointCloud2& blob) {
+  for (const char* name : kIntensityFieldNames)
+    if (const pcl::PCLPointField* f = checked_field(blob, name)) return f;
+  return nullptr;
+}
+
 }  // namespace
+
+bool has_intensity(const pcl::PCLPointCloud2& blob) {
+  for (const char* name : kIntensityFieldNames)
+    if (has_field(blob, name)) return true;
+  return false;
+}
 
 void pointcloud2_to_xyzi(const pcl::PCLPointCloud2& blob, pcl::PointCloud<pcl::PointXYZI>& out,
                          float missing_intensity) {
   const pcl::PCLPointField* fx = checked_field(blob, "x");
   const pcl::PCLPointField* fy = checked_field(blob, "y");
   const pcl::PCLPointField* fz = checked_field(blob, "z");
-  const pcl::PCLPointField* fi = checked_field(blob, "intensity");
+  const pcl::PCLPointField* fi = intensity_field(blob);
   if (fx == nullptr || fy == nullptr || fz == nullptr)
     throw std::invalid_argument("iwlomap: the cloud has no x, y and z fields");
   const std::uint64_t n = point_count(blob);

@@ -103,7 +103,7 @@ LoadedCloud load_cloud(const std::string& path, float missing_intensity) {
     throw std::runtime_error("'" + path + "': the sensor origin or orientation is not finite");
   LoadedCloud out;
   out.cloud.reset(new pcl::PointCloud<pcl::PointXYZI>);
-  out.has_intensity = has_field(blob, "intensity");
+  out.has_intensity = has_intensity(blob);
   blob_to_xyzi(blob, missing_intensity, path, *out.cloud, out.colors);
   out.cloud->sensor_origin_ = origin;
   out.cloud->sensor_orientation_ = orientation;

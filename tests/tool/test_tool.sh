@@ -55,6 +55,10 @@ check generate 0 "$TOOL" generate -o "$WORK/scan.pcd" --rings 16 --columns 256
 check info 0 "$TOOL" info "$WORK/scan.pcd"
 expect info_counts grep -q "4096 points" "$WORK/info.out"
 expect info_origin grep -q "sensor origin (m): (0, 0, 1.5)" "$WORK/info.out"
+# CloudCompare writes the intensity of a PLY as the scalar field `scalar_intensity`.
+printf 'ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty float scalar_intensity\nend_header\n1 0 0 200\n2 0 0 10\n0 3 0 250\n' >"$WORK/cloudcompare.ply"
+check info_scalar_intensity 0 "$TOOL" info "$WORK/cloudcompare.ply"
+expect scalar_intensity_read grep -q "intensity: \[10, 250\]" "$WORK/info_scalar_intensity.out"
 
 check map_pcd 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar -o "$WORK/occupied.pcd"
 expect map_summary grep -q "occupied (p > 0.7)" "$WORK/map_pcd.out"

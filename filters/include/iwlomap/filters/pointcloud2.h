@@ -20,9 +20,15 @@
 
 namespace iwlomap {
 
-/// Fills \p out with the `x`, `y`, `z` (metres) and `intensity` fields of \p blob, each converted
-/// from whatever type it is stored as (float32/64, signed or unsigned integers of 1 to 8 bytes)
-/// to float. Without an `intensity` field every point gets \p missing_intensity (the map's
+/// The names read as the intensity field, first match wins: PCL's `intensity`, `Intensity`, and
+/// CloudCompare's scalar fields `scalar_intensity` and `scalar_Intensity` (its PLY export).
+inline constexpr const char* kIntensityFieldNames[] = {"intensity", "Intensity", "scalar_intensity",
+                                                       "scalar_Intensity"};
+
+/// Fills \p out with the `x`, `y`, `z` (metres) and intensity (kIntensityFieldNames) fields of
+/// \p blob, each converted from whatever type it is stored as (float32/64, signed or unsigned
+/// integers of 1 to 8 bytes) to float. Without an intensity field every point gets
+/// \p missing_intensity (the map's
 /// intensity_max makes every point a full-weight hit). Width, height (organisation) and the point
 /// order are kept; `is_dense` is false, since points are not checked; the sensor origin and
 /// orientation are left as \p out had them (PCLPointCloud2 does not carry them).
@@ -38,6 +44,9 @@ void pointcloud2_to_xyzi(const pcl::PCLPointCloud2& blob, pcl::PointCloud<pcl::P
 /// Throws std::invalid_argument when the field is not 4 bytes or lies outside the point, or the
 /// data is shorter than width x height points.
 [[nodiscard]] std::optional<ColorMatrix> pointcloud2_colors(const pcl::PCLPointCloud2& blob);
+
+/// Whether \p blob has an intensity field (one of kIntensityFieldNames).
+[[nodiscard]] bool has_intensity(const pcl::PCLPointCloud2& blob);
 
 /// Whether \p blob has a field named \p name.
 [[nodiscard]] bool has_field(const pcl::PCLPointCloud2& blob, const std::string& name);
