@@ -18,6 +18,8 @@
 
 #include <cstdlib>
 #include <fstream>
+#include <memory>
+#include <optional>
 #include <iterator>
 #include <random>
 #include <sstream>
@@ -164,6 +166,28 @@ TEST(OctomapWriter, EmptyMapEqualsOctoMapsEmptyTree) {
   ProbabilityUpdater map(0.05);
   const std::string bt = expect_octree_bytes(map, 0.7, "empty map");
   EXPECT_NE(bt.find("size 0\n"), std::string::npos);
+}
+
+// import_octomap(path) opens the file as a new RAM map at the file's resolution: the voxels of an
+// exported .ot come back with their float log-odds.
+TEST(OctomapWriter, ImportWithoutAMapOpensTheFileAtItsResolution) {
+  TempDir dir;
+  ProbabilityUpdater map(0.1);
+  fill_pattern(map, 13, 2000);
+  export_octomap(map, dir.sub("m.ot"));
+  const std::unique_ptr<ProbabilityUpdater> opened = import_octomap(dir.sub("m.ot"));
+  ASSERT_NE(opened, nullptr);
+  EXPECT_DOUBLE_EQ(opened->get_resolution(), 0.1);
+  EXPECT_EQ(opened->get_num_nodes(), map.get_num_nodes());
+  std::size_t compared = 0;
+  map.for_each_voxel([&](const VoxelKey& k, const VoxelState& v) {
+    const std::optional<VoxelState> o = opened->query(center(k, 0.1));
+    ASSERT_TRUE(o.has_value());
+    EXPECT_EQ(static_cast<float>(o->log_odds), static_cast<float>(v.log_odds));
+    ++compared;
+  });
+  EXPECT_GT(compared, 30000u);
+  EXPECT_THROW((void)import_octomap(dir.sub("missing.ot")), std::runtime_error);
 }
 
 }  // namespace

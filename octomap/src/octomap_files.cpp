@@ -353,6 +353,13 @@ void export_octomap(const IMapperBackend& map, const std::string& path, double o
                      [&](std::ostream& out) { return stream.write(out, map.get_resolution()); });
 }
 
+std::unique_ptr<ProbabilityUpdater> import_octomap(const std::string& path) {
+  const detail::LoadedTree loaded = detail::read_octomap_file(path, "import_octomap", nullptr);
+  auto map = std::make_unique<ProbabilityUpdater>(loaded.resolution);
+  detail::set_tree_voxels(*loaded.tree, *map);
+  return map;
+}
+
 void import_octomap(const std::string& path, IMapperBackend& map) {
   const detail::LoadedTree loaded = detail::read_octomap_file(path, "import_octomap", nullptr);
   const double r = map.get_resolution();

@@ -12,8 +12,9 @@ from ._iwlomap import *  # noqa: F401,F403
 from ._iwlomap import __version__, iwlo  # noqa: F401
 from . import _iwlomap
 from .pcd import read_pcd, write_pcd  # noqa: F401
+from .ply import read_ply, write_ply  # noqa: F401
 
 if _iwlomap.HAS_VIEWER:
     from ._iwlomap import viewer  # noqa: F401
 
-__all__ = [name for name in dir(_iwlomap) if not name.startswith("_")] + ["read_pcd", "write_pcd"]
+__all__ = [name for name in dir(_iwlomap) if not name.startswith("_")] + ["read_pcd", "write_pcd", "read_ply", "write_ply"]

@@ -1,14 +1,18 @@
 # SPDX-License-Identifier: BSD-3-Clause
 """Reading and writing PCD files with numpy alone (no PCL needed).
 
-Covers what sensor logs and iwlomap itself write: ``DATA ascii`` and ``DATA binary`` with fields of
-types F (4 or 8 bytes), I and U (1, 2, 4 or 8 bytes) and COUNT 1. ``binary_compressed`` is refused
-with a ValueError that says so.
+Covers what sensor logs, PCL and iwlomap itself write: ``DATA ascii``, ``binary`` and
+``binary_compressed`` (PCL's default for large clouds; LZF) with fields of types F (4 or 8 bytes),
+I and U (1, 2, 4 or 8 bytes) and COUNT 1. The intensity is the field ``intensity``, else
+``Intensity``, ``scalar_intensity`` or ``scalar_Intensity`` (CloudCompare's names), as the tool reads it.
 """
 
 import os
 
 import numpy as np
+
+# The names read as the intensity field, first match wins (as the C++ pointcloud2_to_xyzi()).
+INTENSITY_FIELDS = ("intensity", "Intensity", "scalar_intensity", "scalar_Intensity")
 
 _TYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("I", 1): "i1", ("I", 2): "<i2", ("I", 4): "<i4", ("I", 8): "<i8",
           ("U", 1): "u1", ("U", 2): "<u2", ("U", 4): "<u4", ("U", 8): "<u8"}
@@ -25,7 +29,8 @@ class PcdCloud:
         self.width = width
         self.height = height
         self.points = np.column_stack([fields[a].astype(np.float64) for a in ("x", "y", "z")])
-        self.intensities = fields["intensity"].astype(np.float64) if "intensity" in fields else None
+        name = next((n for n in INTENSITY_FIELDS if n in fields), None)
+        self.intensities = fields[name].astype(np.float64) if name is not None else None
         self.origin = np.asarray(viewpoint[:3], dtype=np.float64)
         self.orientation = np.asarray(viewpoint[3:], dtype=np.float64)
 
@@ -36,7 +41,8 @@ class PcdCloud:
 def read_pcd(path):
     """Reads a PCD file (see the module note) into a PcdCloud. Raises OSError naming the file when it
     cannot be read and ValueError naming the file and the problem when its content is not a PCD this
-    reader takes (missing x/y/z, unknown type, binary_compressed, fewer bytes than promised)."""
+    reader takes (missing x/y/z, unknown type, fewer bytes than promised, LZF data that does not
+    expand to the promised size)."""
     path = os.fspath(path)
     with open(path, "rb") as f:
         data = f.read()
@@ -90,10 +96,38 @@ def read_pcd(path):
         records = np.empty(points, dtype=dtype)
         for k, n in enumerate(names):
             records[n] = table[:, k]
+    elif mode == "binary_compressed":
+        records = _compressed_records(data, pos, points, names, types, sizes, dtype, path)
     else:
-        raise ValueError(f"{path}: DATA {mode} is not supported (ascii or binary)")
+        raise ValueError(f"{path}: DATA {mode} is not supported (ascii, binary or binary_compressed)")
     fields = {n: np.array(records[n]) for n in names}
     return PcdCloud(fields, width, height, viewpoint)
+
+
+def _compressed_records(data, pos, points, names, types, sizes, dtype, path):
+    """PCL's binary_compressed body: the compressed and uncompressed sizes (uint32 each), then LZF
+    data that expands to every field's values one field after the other."""
+    from . import _iwlomap
+
+    if len(data) - pos < 8:
+        raise ValueError(f"{path}: binary_compressed data without its two sizes")
+    compressed, raw = (int(v) for v in np.frombuffer(data, dtype="<u4", count=2, offset=pos))
+    if len(data) - pos - 8 < compressed:
+        raise ValueError(f"{path}: {len(data) - pos - 8} bytes of compressed data, the header of the data "
+                         f"promises {compressed}")
+    if raw != points * dtype.itemsize:
+        raise ValueError(f"{path}: the compressed data expands to {raw} bytes, {points} points need "
+                         f"{points * dtype.itemsize}")
+    try:
+        body = _iwlomap._lzf_decompress(data[pos + 8:pos + 8 + compressed], raw)
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None
+    records = np.empty(points, dtype=dtype)
+    offset = 0
+    for n, t, s in zip(names, types, sizes):
+        records[n] = np.frombuffer(body, dtype=_TYPES[(t, s)], count=points, offset=offset)
+        offset += points * s
+    return records
 
 
 def write_pcd(path, points, intensities=None, origin=(0.0, 0.0, 0.0)):

@@ -25,6 +25,8 @@
 #include <algorithm>
 #include <charconv>
 #include <cmath>
+#include <limits>
+#include <optional>
 #include <sstream>
 #include <unordered_map>
 #include <vector>
@@ -253,14 +255,16 @@ void bind_backend(py::module_& m) {
           [](Backend& map, const py::handle& points, const py::handle& intensities, const py::handle& is_occupied,
              const py::object& weights) {
             const Eigen::MatrixXd p = points_from(points);
-            const Eigen::VectorXd i = values_from(intensities, "intensities", p.rows());
+            const double missing = intensities.is_none() ? unlocked(map, [&] { return map.get_params().intensity_max; }) : 0.0;
+            const Eigen::VectorXd i = intensities_or(intensities, p.rows(), missing);
             const std::vector<bool> f = flags_from(is_occupied, "is_occupied", p.rows());
             if (weights.is_none()) return unlocked(map, [&] { map.batch_update_iwlo(p, i, f); });
             const Eigen::VectorXd w = values_from(weights, "weights", p.rows());
             unlocked(map, [&] { map.batch_update_iwlo(p, i, f, w); });
           },
           py::arg("points"), py::arg("intensities"), py::arg("is_occupied"), py::arg("weights") = py::none(),
-          "One IWLO observation per row: points (N, 3) metres, map frame; intensities (N,); is_occupied (N,) bool; "
+          "One IWLO observation per row: points (N, 3) metres, map frame; intensities (N,) or None (every point at "
+          "the map's intensity_max); is_occupied (N,) bool; "
           "optional weights (N,) in [0, 1]. Rows of one voxel apply in call order; NaN rows are skipped and counted.")
       .def(
           "insert_scan",
@@ -268,13 +272,15 @@ void bind_backend(py::module_& m) {
              double max_range) {
             const Eigen::Vector3d o = vector3_from(origin, "origin");
             const Eigen::MatrixXd p = points_from(points);
-            const Eigen::VectorXd i = values_from(intensities, "intensities", p.rows());
+            const double missing = intensities.is_none() ? unlocked(map, [&] { return map.get_params().intensity_max; }) : 0.0;
+            const Eigen::VectorXd i = intensities_or(intensities, p.rows(), missing);
             unlocked(map, [&] { map.insert_scan(o, p, i, max_range); });
           },
-          py::arg("origin"), py::arg("points"), py::arg("intensities"), py::arg("max_range") = -1.0,
+          py::arg("origin"), py::arg("points"), py::arg("intensities") = py::none(), py::arg("max_range") = -1.0,
           "One scan: rays from origin (3,) to every point (N, 3), metres, map frame; a point whose intensity "
-          "exceeds the threshold is a hit. Each voxel gets one observation per scan (occupied wins). Rays longer "
-          "than max_range metres (> 0) are clipped and give no hit.")
+          "exceeds the threshold is a hit; intensities None: every point a return at the map's intensity_max. Each "
+          "voxel gets one observation per scan (occupied wins). Rays longer than max_range metres (> 0) are clipped "
+          "and give no hit.")
       .def(
           "set_iwlo_params",
           [](Backend& map, double sharpness, double decay_rate, double min_alpha, double L_min, double L_max) {
@@ -332,11 +338,46 @@ void bind_backend(py::module_& m) {
           py::arg("feature"))
       .def(
           "query",
-          [](Backend& map, const py::handle& point) {
-            const Eigen::Vector3d p = vector3_from(point, "point");
-            return unlocked(map, [&] { return map.query(p); });
+          [](Backend& map, const py::handle& point) -> py::object {
+            const py::array a = as_array(point, "point");
+            if (a.ndim() != 2) {
+              const Eigen::Vector3d p = vector3_from(point, "point");
+              return py::cast(unlocked(map, [&] { return map.query(p); }));
+            }
+            // (N, 3): one call for all points, the states as arrays.
+            const Eigen::MatrixXd p = points_from(point, "point");
+            const Eigen::Index n = p.rows();
+            Eigen::VectorXd log_odds(n), probability(n);
+            std::vector<std::uint32_t> counts(static_cast<std::size_t>(n));
+            std::vector<bool> known(static_cast<std::size_t>(n));
+            unlocked(map, [&] {
+              constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+              for (Eigen::Index r = 0; r < n; ++r) {
+                const std::optional<VoxelState> s = map.query(p.row(r).transpose());
+                const auto i = static_cast<std::size_t>(r);
+                known[i] = s.has_value();
+                log_odds[r] = s ? s->log_odds : kNaN;
+                probability[r] = s ? s->probability : kNaN;
+                counts[i] = s ? s->count : 0;
+              }
+            });
+            py::array_t<bool> k(n);
+            py::array_t<std::uint32_t> c(n);
+            for (Eigen::Index r = 0; r < n; ++r) {
+              k.mutable_at(r) = known[static_cast<std::size_t>(r)];
+              c.mutable_at(r) = counts[static_cast<std::size_t>(r)];
+            }
+            py::dict out;
+            out["known"] = k;
+            out["log_odds"] = to_numpy(log_odds);
+            out["probability"] = to_numpy(probability);
+            out["count"] = c;
+            return out;
           },
-          py::arg("point"), "The voxel containing point (metres, map frame), or None when it is unknown.")
+          py::arg("point"),
+          "The voxel containing point (3,) (metres, map frame), or None when it is unknown. For points (N, 3): a "
+          "dict of (N,) arrays 'known' (bool), 'log_odds' and 'probability' (NaN where unknown) and 'count' "
+          "(0 where unknown), in one call.")
       .def(
           "for_each_voxel",
           [](Backend& map, const std::function<void(const VoxelKey&, const VoxelState&)>& visit) {

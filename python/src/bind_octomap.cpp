@@ -89,11 +89,22 @@ void bind_octomap(py::module_& m) {
       "Writes any map as an OctoMap file: .bt (occupancy at the map's threshold, or occupied_threshold) or .ot.");
   m.def(
       "import_octomap",
-      [](const py::handle& path, IMapperBackend& map) {
+      [](const py::handle& path, IMapperBackend* map) -> py::object {
         const std::string file = path_from(path);
-        unlocked(map, [&] { with_file_errors(file, [&] { import_octomap(file, map); }); });
+        if (map != nullptr) {
+          unlocked(*map, [&] { with_file_errors(file, [&] { import_octomap(file, *map); }); });
+          return py::none();
+        }
+        std::unique_ptr<ProbabilityUpdater> made;
+        {
+          py::gil_scoped_release release;
+          with_file_errors(file, [&] { made = import_octomap(file); });
+        }
+        return py::cast(std::shared_ptr<ProbabilityUpdater>(std::move(made)));
       },
-      py::arg("path"), py::arg("map"), "Reads a .bt/.ot file into map (same resolution).");
+      py::arg("path"), py::arg("map") = nullptr,
+      "Reads a .bt/.ot file into map (same resolution); without a map, returns a new ProbabilityUpdater at the "
+      "file's resolution.");
 }
 
 }  // namespace iwlomap::python

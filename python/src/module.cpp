@@ -16,11 +16,51 @@
 
 #include <pybind11/pybind11.h>
 
+#include <cstddef>
 #include <stdexcept>
+#include <string>
 
 namespace py = pybind11;
 
 namespace {
+
+// LZF (the compression of PCL's binary_compressed PCD): \p in expands to exactly \p size bytes,
+// or std::invalid_argument says where it goes wrong. Each control byte starts either a literal
+// run (c < 32: the next c + 1 bytes) or a back reference (length c >> 5, plus a byte when that is
+// 7, plus 2; distance ((c & 31) << 8) + the next byte + 1).
+py::bytes lzf_decompress(const py::bytes& data, std::size_t size) {
+  const std::string in = data;
+  std::string out(size, '\0');
+  std::size_t ip = 0, op = 0;
+  const auto fail = [&](const std::string& why) {
+    throw std::invalid_argument("LZF data: " + why + " at input byte " + std::to_string(ip));
+  };
+  while (ip < in.size()) {
+    const unsigned ctrl = static_cast<unsigned char>(in[ip++]);
+    if (ctrl < 32) {
+      const std::size_t n = ctrl + 1;
+      if (ip + n > in.size()) fail("a literal run passes the end of the input");
+      if (op + n > size) fail("a literal run passes the promised size");
+      out.replace(op, n, in, ip, n);
+      ip += n;
+      op += n;
+      continue;
+    }
+    std::size_t n = ctrl >> 5;
+    if (n == 7) {
+      if (ip >= in.size()) fail("the input ends inside a back reference");
+      n += static_cast<unsigned char>(in[ip++]);
+    }
+    if (ip >= in.size()) fail("the input ends inside a back reference");
+    const std::size_t back = ((ctrl & 31u) << 8) + static_cast<unsigned char>(in[ip++]) + 1;
+    n += 2;
+    if (back > op) fail("a back reference points before the start");
+    if (op + n > size) fail("a back reference passes the promised size");
+    for (std::size_t k = 0; k < n; ++k, ++op) out[op] = out[op - back];  // may overlap: byte by byte
+  }
+  if (op != size) fail("the data expands to " + std::to_string(op) + " bytes, not " + std::to_string(size));
+  return py::bytes(out);
+}
 
 // Raises \p type (an OSError subclass) with errno None, the message and the path as filename.
 void raise_os_error(const py::object& type, const std::string& message, const std::string& path) {
@@ -74,6 +114,9 @@ PYBIND11_MODULE(_iwlomap, m) {
       raise_os_error(py::reinterpret_borrow<py::object>(PyExc_OSError), e.what(), e.path);
     }
   });
+
+  m.def("_lzf_decompress", &lzf_decompress, py::arg("data"), py::arg("size"),
+        "LZF-decompresses data to exactly size bytes (PCD binary_compressed); ValueError when it does not.");
 
   iwlomap::python::bind_core(m);
   iwlomap::python::bind_sonar(m);

@@ -89,6 +89,11 @@ Eigen::VectorXd values_from(const py::handle& obj, const char* name, Eigen::Inde
   return v;
 }
 
+Eigen::VectorXd intensities_or(const py::handle& obj, Eigen::Index n, double missing) {
+  if (obj.is_none()) return Eigen::VectorXd::Constant(n, missing);
+  return values_from(obj, "intensities", n);
+}
+
 std::vector<bool> flags_from(const py::handle& obj, const char* name, Eigen::Index n) {
   const py::array a = as_array(obj, name);
   if (a.ndim() != 1) bad(name, "expected shape (N,), got " + shape_text(a));

@@ -37,6 +37,10 @@ Eigen::MatrixXd rows_from(const py::handle& obj, const char* name, int min_cols,
 Eigen::Vector3d vector3_from(const py::handle& obj, const char* name);
 /// An (N,) array of real numbers; \p n >= 0 requires exactly n values.
 Eigen::VectorXd values_from(const py::handle& obj, const char* name, Eigen::Index n = -1);
+/// The intensities of \p n points: \p obj as values_from(), or, when it is None, \p missing for
+/// every point (callers pass the map's intensity_max: every point a full return, as the tool
+/// reads a cloud without intensities).
+Eigen::VectorXd intensities_or(const py::handle& obj, Eigen::Index n, double missing);
 /// An (N,) array of booleans (bool dtype, or integers 0/1); \p n >= 0 requires exactly n values.
 std::vector<bool> flags_from(const py::handle& obj, const char* name, Eigen::Index n = -1);
 /// An (N, 3) uint8 array of colours.

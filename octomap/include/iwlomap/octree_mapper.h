@@ -9,6 +9,7 @@
 /// Linking iwlomap::octomap makes make_backend("OctoMap") work; no header needs to be included.
 
 #include "iwlomap/mapper_backend.h"
+#include "iwlomap/probability_updater.h"
 
 #include <memory>
 #include <string>
@@ -184,5 +185,10 @@ void export_octomap(const IMapperBackend& map, const std::string& path, double o
 /// extension or a resolution mismatch, std::runtime_error naming the path when the file is
 /// missing, unreadable, not an OctoMap file or corrupt; the map is unchanged then.
 void import_octomap(const std::string& path, IMapperBackend& map);
+
+/// Reads an OctoMap file into a new RAM map (ProbabilityUpdater) at the file's resolution (as
+/// OctoMap wrote it, 6 significant digits), with the reference's default parameters; otherwise as
+/// import_octomap(path, map).
+[[nodiscard]] std::unique_ptr<ProbabilityUpdater> import_octomap(const std::string& path);
 
 }  // namespace iwlomap
