@@ -308,10 +308,9 @@ TEST(OutofcoreTileMapper, ThrowsInvalidArgumentWhenArgumentsInvalid) {
     return "(nothing thrown)";
   };
   EXPECT_NE(message([&] { OutofcoreTileMapper m("", 0.05); }).find("directory"), std::string::npos);
-  EXPECT_NE(message([&] { OutofcoreTileMapper m(dir, 0.0); }).find("resolution = 0"), std::string::npos);
+  EXPECT_NE(message([&] { OutofcoreTileMapper m(dir, -0.05); }).find("resolution = -0.05"), std::string::npos);
   EXPECT_NE(message([&] { OutofcoreTileMapper m(dir, 0.05, 10.0, 0); }).find("cache_tiles"), std::string::npos);
   EXPECT_NE(message([&] { OutofcoreTileMapper m(dir, 0.05, kNaN); }).find("tile_size"), std::string::npos);
-  EXPECT_NE(message([&] { OutofcoreTileMapper m(dir, 0.05, 0.0); }).find("tile_size = 0"), std::string::npos);
   EXPECT_NE(message([&] { OutofcoreTileMapper m(dir, 0.05, -1.0); }).find("tile_size = -1"), std::string::npos);
   EXPECT_FALSE(fs::exists(fs::path(dir) / "iwlomap_map.meta")) << "nothing is written for invalid arguments";
   // Defaults: 10 m / 0.05 m = 200 voxels = 25 blocks.
@@ -321,6 +320,26 @@ TEST(OutofcoreTileMapper, ThrowsInvalidArgumentWhenArgumentsInvalid) {
   EXPECT_EQ(defaults.get_cache_tiles(), 16u);
   EXPECT_EQ(defaults.get_backend_type(), "Disk");
   EXPECT_TRUE(defaults.supports_persistence());
+}
+
+// OutofcoreTileMapper(dir), as the reference API opens a map: an existing map at its stored
+// resolution and tile size (here not the defaults), with its voxels.
+TEST(OutofcoreTileMapper, OpensAnExistingMapWithItsStoredParametersFromTheDirectoryAlone) {
+  const TempDir tmp;
+  const std::string dir = tmp.sub("map");
+  Eigen::MatrixXd points(3, 3);
+  points << 0.15, 0.25, 0.35, 2.0, -1.0, 0.5, -3.3, 4.4, 1.1;
+  std::size_t known = 0;
+  {
+    OutofcoreTileMapper made(dir, 0.1, 3.2, 4);
+    made.batch_update_iwlo(points, Eigen::VectorXd::Constant(3, 200.0), std::vector<bool>(3, true));
+    known = made.get_num_nodes();
+  }
+  const OutofcoreTileMapper opened(dir);
+  EXPECT_EQ(opened.get_resolution(), 0.1);
+  EXPECT_EQ(opened.get_tile_voxels(), 32u);
+  EXPECT_EQ(opened.get_num_nodes(), known);
+  EXPECT_TRUE(opened.query(points.row(1).transpose()).has_value());
 }
 
 // Any positive tile size is rounded to whole 8^3 blocks (at least one, at most 1,024): every

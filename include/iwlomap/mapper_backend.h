@@ -8,6 +8,15 @@
 /// units; log-odds are natural logarithms. The IWLO update every backend applies is documented in
 /// iwlo.h. Each call handles a whole batch: there is one virtual call per batch, never per voxel.
 ///
+/// Threads: a backend object is not a shared container. Every backend allows any number of
+/// threads to call its const methods at once while no thread changes the map; a call that changes
+/// it (updates, scans, parameters, clear, flush, set_log_odds) needs the map to itself, as a
+/// std::vector does. The Disk backend goes further: it takes a lock inside every method, so any
+/// calls from any threads are safe (they run one at a time). Inside one call the RAM and OctoMap
+/// backends may use several threads of their own (set_num_threads()); the results do not depend
+/// on how many. To share a map between a writer and readers, use AsyncMapper (async_mapper.h),
+/// which orders them, or a lock of your own.
+///
 /// Errors: size mismatches and invalid parameters throw std::invalid_argument naming the value;
 /// a call that throws for its input changes nothing. When memory runs out (std::bad_alloc) the map
 /// stays consistent, but a batch may be partly applied (the RAM and Disk backends apply batches in
@@ -81,7 +90,7 @@ class IMapperBackend {
   /// Occupied voxels: every known voxel with probability > \p min_probability (strict), as an
   /// N x 4 matrix of rows (x, y, z, p) with the voxel centre in metres, map frame. A negative
   /// \p min_probability means 0.5; a value above 1 or NaN throws std::invalid_argument.
-  [[nodiscard]] virtual Eigen::MatrixXd get_occupied_voxels(double min_probability = 0.5) = 0;
+  [[nodiscard]] virtual Eigen::MatrixXd get_occupied_voxels(double min_probability = 0.5) const = 0;
   [[nodiscard]] virtual MemoryStats get_memory_usage() const = 0;
   /// Voxel edge length in metres.
   [[nodiscard]] virtual double get_resolution() const = 0;

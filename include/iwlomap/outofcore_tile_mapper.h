@@ -127,19 +127,27 @@ class OutofcoreTileMapper final : public BackendBase {
   /// damaged (kCorrupt) or newer (kNewerVersion).
   [[nodiscard]] static DiskMapInfo read_map_info(const std::string& directory);
 
+  /// For resolution and tile_size: the stored value of an existing map, the default of a new one.
+  static constexpr double kStored = 0.0;
+  static constexpr double kDefaultResolution = 0.05;  ///< metres, for a new map
+  static constexpr double kDefaultTileSize = 10.0;    ///< metres, for a new map
+
   /// Opens the map in \p directory (created, with its parents, when missing) or creates a new one.
+  /// `OutofcoreTileMapper(dir)` opens an existing map with its stored resolution and tile size,
+  /// or creates one with the defaults (0.05 m, 10 m).
   /// \param directory   map directory (not empty)
-  /// \param resolution  voxel edge in metres (> 0, finite)
+  /// \param resolution  voxel edge in metres (> 0, finite), or kStored
   /// \param tile_size   tile edge in metres (> 0, finite), rounded to the nearest whole number of
   ///                    8^3 blocks: at least one block (8 voxels), at most 1,024 (8,192 voxels).
   ///                    The effective size is what get_tile_size() returns and the metadata
   ///                    stores (the defaults give 200 voxels = 25 blocks = 10 m; at 0.1 m,
   ///                    10 m is 12.5 blocks, rounded to 13: 104 voxels = 10.4 m). Reopening a
   ///                    map accepts any tile_size that rounds to the stored number of voxels.
+  ///                    kStored as for resolution.
   /// \param cache_tiles resident tiles (>= 1)
   /// Throws std::invalid_argument for an invalid argument or one that differs from the stored map,
   /// StorageError for a directory or file that cannot be used (see the class comment).
-  explicit OutofcoreTileMapper(const std::string& directory, double resolution = 0.05, double tile_size = 10.0,
+  explicit OutofcoreTileMapper(const std::string& directory, double resolution = kStored, double tile_size = kStored,
                                size_t cache_tiles = 16);
   /// Opens the map in \p directory read-only, at its stored resolution and tile size, keeping at
   /// most \p cache_tiles tiles (>= 1) in RAM: it reads the last commit and sees exactly that map
@@ -185,7 +193,7 @@ class OutofcoreTileMapper final : public BackendBase {
 
   /// Covers every tile: resident tiles from RAM, the others streamed from disk one at a time
   /// without entering the cache.
-  [[nodiscard]] Eigen::MatrixXd get_occupied_voxels(double min_probability = 0.5) override;
+  [[nodiscard]] Eigen::MatrixXd get_occupied_voxels(double min_probability = 0.5) const override;
   /// Loads the voxel's tile into the cache when it is on disk (which may evict and write another).
   [[nodiscard]] std::optional<VoxelState> query(const Eigen::Vector3d& point) const override;
   /// Every known voxel, tile by tile in (x, y, z) order of tile coordinates; tiles on disk are

@@ -47,7 +47,7 @@ class ProbabilityUpdater final : public BackendBase {
   [[nodiscard]] IwloParams get_params() const override;
   void set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) override;
 
-  [[nodiscard]] Eigen::MatrixXd get_occupied_voxels(double min_probability = 0.5) override;
+  [[nodiscard]] Eigen::MatrixXd get_occupied_voxels(double min_probability = 0.5) const override;
   [[nodiscard]] std::optional<VoxelState> query(const Eigen::Vector3d& point) const override;
   void for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const override;
 

@@ -281,19 +281,20 @@ size_t OctreeMapper::prune_tree() {
   return before - m.tree.size();
 }
 
-void OctreeMapper::save_to_file(const std::string& path) const {
+bool OctreeMapper::save_to_file(const std::string& path) const {
   const Impl& m = impl();
   if (detail::format_of(path, "save_to_file") == detail::FileFormat::kBinary) {
     export_octomap(*this, path);
-    return;
+    return true;
   }
   // .ot: the octree itself, whose leaves are the exact log-odds.
   std::lock_guard<std::mutex> lock(m.tree_mutex);
   m.refresh_inner_locked();
   detail::write_tree(m.tree, detail::FileFormat::kFull, path, "save_to_file");
+  return true;
 }
 
-void OctreeMapper::load_from_file(const std::string& path) {
+bool OctreeMapper::load_from_file(const std::string& path) {
   Impl& m = impl();
   const std::pair<double, double> clamping(m.prob_thres_min, m.prob_thres_max);
   const detail::LoadedTree loaded = detail::read_octomap_file(path, "load_from_file", &clamping);
@@ -302,6 +303,7 @@ void OctreeMapper::load_from_file(const std::string& path) {
   m.tree.setResolution(loaded.resolution);
   m.hits.reset(loaded.resolution);
   detail::set_tree_voxels(*loaded.tree, *this);
+  return true;
 }
 
 // ---- IMapperBackend ----
@@ -369,7 +371,7 @@ void OctreeMapper::set_log_odds(const Eigen::MatrixXd& points, const Eigen::Vect
 void OctreeMapper::set_params(const IwloParams& params) { impl().updater = detail::Updater(params); }
 IwloParams OctreeMapper::get_params() const { return impl().updater.params(); }
 
-Eigen::MatrixXd OctreeMapper::get_occupied_voxels(double min_probability) {
+Eigen::MatrixXd OctreeMapper::get_occupied_voxels(double min_probability) const {
   return detail::occupied_matrix(impl().grid, impl().resolution, min_probability);
 }
 

@@ -481,8 +481,11 @@ void bind_backend(py::module_& m) {
              py::gil_scoped_release release;
              return std::make_shared<OutofcoreTileMapper>(dir, resolution, tile_size, cache_tiles);
            }),
-           py::arg("directory"), py::arg("resolution") = 0.05, py::arg("tile_size") = 10.0, py::arg("cache_tiles") = 16,
-           "Opens or creates the map in directory (resolution and tile_size in metres; cache_tiles resident tiles).")
+           py::arg("directory"), py::arg("resolution") = OutofcoreTileMapper::kStored,
+           py::arg("tile_size") = OutofcoreTileMapper::kStored, py::arg("cache_tiles") = 16,
+           "Opens or creates the map in directory (resolution and tile_size in metres; cache_tiles resident tiles). "
+           "resolution and tile_size 0 (the defaults): an existing map's stored values, or 0.05 m and 10 m for a new "
+           "map.")
       .def_static(
           "open_read_only",
           [](const py::handle& directory, size_t cache_tiles) {

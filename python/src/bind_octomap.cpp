@@ -62,16 +62,18 @@ void bind_octomap(py::module_& m) {
           "save_to_file",
           [](OctreeMapper& map, const py::handle& path) {
             const std::string file = path_from(path);
-            unlocked(map, [&] { with_file_errors(file, [&] { map.save_to_file(file); }); });
+            unlocked(map, [&] { with_file_errors(file, [&] { (void)map.save_to_file(file); }); });
+            return true;
           },
-          py::arg("path"), "Writes the map as .bt (occupancy) or .ot (full log-odds).")
+          py::arg("path"), "Writes the map as .bt (occupancy) or .ot (full log-odds); True (failures raise).")
       .def(
           "load_from_file",
           [](OctreeMapper& map, const py::handle& path) {
             const std::string file = path_from(path);
-            unlocked(map, [&] { with_file_errors(file, [&] { map.load_from_file(file); }); });
+            unlocked(map, [&] { with_file_errors(file, [&] { (void)map.load_from_file(file); }); });
+            return true;
           },
-          py::arg("path"));
+          py::arg("path"), "Replaces the map by a .bt/.ot file at its resolution; True (failures raise).");
   m.def(
       "export_octomap",
       [](IMapperBackend& map, const py::handle& path, std::optional<double> occupied_threshold) {

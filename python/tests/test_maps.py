@@ -443,3 +443,14 @@ def test_two_threads_integrate_into_two_maps_at_once():
         alone = lidar_map(0.2)
         alone.insert_scan(*scans[k])
         assert np.array_equal(voxel_table(maps[k]), voxel_table(alone))
+
+
+def test_disk_map_opened_from_its_directory_alone_takes_its_stored_parameters(tmp_path):
+    made = iwlomap.OutofcoreTileMapper(tmp_path / "map", 0.1, 3.2)
+    made.batch_update_iwlo(np.array([[0.15, 0.25, 0.35], [2.0, -1.0, 0.5]]), None, np.ones(2, dtype=bool))
+    made.flush()
+    del made
+    opened = iwlomap.OutofcoreTileMapper(tmp_path / "map")
+    assert opened.get_resolution() == 0.1 and opened.get_num_nodes() == 2
+    fresh = iwlomap.OutofcoreTileMapper(tmp_path / "new")
+    assert fresh.get_resolution() == 0.05

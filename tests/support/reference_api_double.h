@@ -70,7 +70,7 @@ class ReferenceApiDouble : public IMapperBackend {
     p.occupied_threshold = threshold;
     set(p);
   }
-  Eigen::MatrixXd get_occupied_voxels(double min_probability = 0.5) override {
+  Eigen::MatrixXd get_occupied_voxels(double min_probability = 0.5) const override {
     if (min_probability < 0.0) min_probability = 0.5;
     std::vector<std::pair<VoxelKey, double>> rows;
     for (const auto& [k, v] : voxels_) {

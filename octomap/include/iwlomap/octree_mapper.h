@@ -94,13 +94,15 @@ class OctreeMapper final : public BackendBase {
   /// written to a temporary name and renamed, so a failure never leaves a partial file.
   /// OctoMap's console messages while it writes ".ot" are captured, never printed: the process's
   /// standard output and error are redirected meanwhile, so other threads' output is lost then.
-  /// Throws std::invalid_argument for another extension, std::runtime_error naming the path when
-  /// writing fails.
-  void save_to_file(const std::string& path) const;
+  /// Returns true, as the reference API's `bool ok = save_to_file(path)` expects; a failure is
+  /// never reported by false but thrown: std::invalid_argument for another extension,
+  /// std::runtime_error naming the path when writing fails.
+  bool save_to_file(const std::string& path) const;
   /// Replaces the map by the contents of \p path (".bt" or ".ot", see import_octomap()) and takes
   /// the file's resolution; IWLO parameters and the OctoMap model are kept. Every voxel of the
-  /// file becomes known with count 1. Throws like import_octomap(); on error the map is unchanged.
-  void load_from_file(const std::string& path);
+  /// file becomes known with count 1. Returns true (the reference API's bool); throws like
+  /// import_octomap() instead of returning false, and on error the map is unchanged.
+  bool load_from_file(const std::string& path);
 
   // ---- IMapperBackend ----
 
@@ -117,7 +119,7 @@ class OctreeMapper final : public BackendBase {
 
   /// Occupied voxels from the exact log-odds; a negative \p min_probability means 0.5, as in
   /// IMapperBackend. Rows come in the same order as the RAM backend's for the same input.
-  [[nodiscard]] Eigen::MatrixXd get_occupied_voxels(double min_probability = -1.0) override;
+  [[nodiscard]] Eigen::MatrixXd get_occupied_voxels(double min_probability = -1.0) const override;
   /// A voxel outside OctoMap's key range is never known: std::nullopt.
   [[nodiscard]] std::optional<VoxelState> query(const Eigen::Vector3d& point) const override;
   void for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const override;

@@ -83,6 +83,11 @@ std::string tile_file_name(const VoxelKey& t, std::uint64_t generation) {
 
 // Strict: only the exact names tile_file_name() produces, so no other file is ever taken for a
 // tile (or removed as a retired one).
+bool holds_map(const std::string& directory) {
+  std::error_code ec;
+  return fs::exists(fs::path(directory) / kMetaName, ec);
+}
+
 bool parse_tile_file_name(const std::string& name, VoxelKey& t, std::uint64_t& generation) {
   if (name.rfind(kTilePrefix, 0) != 0 || !ends_with(name, kTileSuffix)) return false;
   const std::string body = name.substr(5, name.size() - 5 - 4);

@@ -31,6 +31,9 @@ inline constexpr std::uint32_t kMapFormatVersion = 3;
 /// "tile_<x>_<y>_<z>.g<generation>.iwt", or "tile_<x>_<y>_<z>.iwt" for generation 0.
 [[nodiscard]] std::string tile_file_name(const VoxelKey& t, std::uint64_t generation = 0);
 /// True, with the tile and generation, for exactly the names tile_file_name() produces.
+/// Whether \p directory holds a map (its metadata file exists).
+[[nodiscard]] bool holds_map(const std::string& directory);
+
 [[nodiscard]] bool parse_tile_file_name(const std::string& name, VoxelKey& t, std::uint64_t& generation);
 
 /// A tile file found in the directory.

@@ -18,6 +18,13 @@ StorageError::StorageError(Kind kind, std::string path, const std::string& messa
 OutofcoreTileMapper::OutofcoreTileMapper(const std::string& directory, double resolution, double tile_size,
                                          size_t cache_tiles) {
   if (directory.empty()) throw std::invalid_argument("iwlomap: OutofcoreTileMapper needs a map directory, got an empty path");
+  // kStored: the stored value of a map that exists, the default of a new one.
+  if (resolution == kStored || tile_size == kStored) {
+    const bool exists = detail::holds_map(directory);
+    const DiskMapInfo info = exists ? read_map_info(directory) : DiskMapInfo{};
+    if (resolution == kStored) resolution = exists ? info.resolution : kDefaultResolution;
+    if (tile_size == kStored) tile_size = exists ? info.tile_size : kDefaultTileSize;
+  }
   detail::check_resolution(resolution);
   if (cache_tiles < 1) throw std::invalid_argument("iwlomap: cache_tiles must be >= 1, got cache_tiles = 0");
   impl_ = std::make_unique<Impl>(directory, resolution, tile_size, cache_tiles);
@@ -142,9 +149,12 @@ void OutofcoreTileMapper::set_log_odds(const Eigen::MatrixXd& points, const Eige
   m.set_log_odds(points, log_odds);
 }
 
-Eigen::MatrixXd OutofcoreTileMapper::get_occupied_voxels(double min_probability) {
+Eigen::MatrixXd OutofcoreTileMapper::get_occupied_voxels(double min_probability) const {
   const double threshold = detail::resolve_min_probability(min_probability);
-  Impl& m = impl();
+  // Reads tiles that are not resident through the cache's buffers (not observable state), as
+  // query() does.
+  (void)impl();
+  Impl& m = *impl_;
   std::lock_guard<std::mutex> lock(m.mutex);
   return detail::rows_to_matrix(
       detail::occupied_rows([&m](auto&& fn) { m.for_each_known(fn); }, threshold,

@@ -164,7 +164,7 @@ void ProbabilityUpdater::set_log_odds(const Eigen::MatrixXd& points, const Eigen
   m.skipped += skip;
 }
 
-Eigen::MatrixXd ProbabilityUpdater::get_occupied_voxels(double min_probability) {
+Eigen::MatrixXd ProbabilityUpdater::get_occupied_voxels(double min_probability) const {
   return detail::occupied_matrix(impl().grid, impl().resolution, min_probability);
 }
 
