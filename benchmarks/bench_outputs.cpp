@@ -53,10 +53,7 @@ Options parse(int argc, char** argv) {
   Options o;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
-    const auto value = [&]() -> std::string {
-      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
-      return argv[++i];
-    };
+    const auto value = [&]() -> std::string { return iwlomap::bench::option_value(argc, argv, i); };
     if (a == "--pcd") o.pcd = value();
     else if (a == "--resolution") o.resolution = std::stod(value());
     else if (a == "--rounds") o.rounds = std::stoi(value());

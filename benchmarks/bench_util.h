@@ -11,6 +11,8 @@
 #include <cstddef>
 #include <cstdio>
 #include <cstdlib>
+#include <stdexcept>
+#include <string>
 #include <ctime>
 #include <vector>
 
@@ -53,6 +55,13 @@ struct Sample {
   std::sort(v.begin(), v.end());
   const std::size_t n = v.size();
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+/// The value of option argv[i] (which needs one): argv[i + 1], advancing i; std::invalid_argument
+/// naming the option when it is the last argument.
+[[nodiscard]] inline const char* option_value(int argc, char** argv, int& i) {
+  if (i + 1 >= argc) throw std::invalid_argument(std::string(argv[i]) + " needs a value");
+  return argv[++i];
 }
 
 /// Prints the compiler and whether assertions are off (figures of a build with assertions on are

@@ -130,9 +130,9 @@ def _compressed_records(data, pos, points, names, types, sizes, dtype, path):
     return records
 
 
-def write_pcd(path, points, intensities=None, origin=(0.0, 0.0, 0.0)):
-    """Writes points (N, 3) and optional intensities (N,) as a binary PCD (float32 fields x y z
-    [intensity]) with VIEWPOINT at origin, as the iwlomap tool reads it."""
+def xyzi_records(points, intensities):
+    """Points (N, 3) and optional intensities (N,) as little-endian float32 records x y z
+    [intensity], checked; returns (field names, records). Shared by write_pcd and write_ply."""
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"points: expected shape (N, 3), got {points.shape}")
@@ -145,6 +145,13 @@ def write_pcd(path, points, intensities=None, origin=(0.0, 0.0, 0.0)):
         if intensities.shape != (points.shape[0],):
             raise ValueError(f"intensities: expected shape ({points.shape[0]},), got {intensities.shape}")
         rec["intensity"] = intensities
+    return names, rec
+
+
+def write_pcd(path, points, intensities=None, origin=(0.0, 0.0, 0.0)):
+    """Writes points (N, 3) and optional intensities (N,) as a binary PCD (float32 fields x y z
+    [intensity]) with VIEWPOINT at origin, as the iwlomap tool reads it."""
+    names, rec = xyzi_records(points, intensities)
     o = [float(v) for v in origin]
     header = (f"# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS {' '.join(names)}\n"
               f"SIZE {' '.join(['4'] * len(names))}\nTYPE {' '.join(['F'] * len(names))}\n"

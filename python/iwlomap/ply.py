@@ -12,7 +12,7 @@ import os
 
 import numpy as np
 
-from .pcd import PcdCloud
+from .pcd import PcdCloud, xyzi_records
 
 _TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
           "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
@@ -99,18 +99,7 @@ def read_ply(path):
 def write_ply(path, points, intensities=None):
     """Writes points (N, 3) and optional intensities (N,) as a binary little-endian PLY (float32
     properties x y z [intensity]), as the iwlomap tool reads it."""
-    points = np.asarray(points, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"points: expected shape (N, 3), got {points.shape}")
-    names = ["x", "y", "z"] + ([] if intensities is None else ["intensity"])
-    rec = np.empty(points.shape[0], dtype=np.dtype([(n, "<f4") for n in names]))
-    for k, n in enumerate("xyz"):
-        rec[n] = points[:, k]
-    if intensities is not None:
-        intensities = np.asarray(intensities, dtype=np.float64)
-        if intensities.shape != (points.shape[0],):
-            raise ValueError(f"intensities: expected shape ({points.shape[0]},), got {intensities.shape}")
-        rec["intensity"] = intensities
+    names, rec = xyzi_records(points, intensities)
     header = "ply\nformat binary_little_endian 1.0\ncomment written by iwlomap\n" + \
         f"element vertex {len(rec)}\n" + "".join(f"property float {n}\n" for n in names) + "end_header\n"
     with open(os.fspath(path), "wb") as f:
