@@ -13,4 +13,5 @@ if [ -s build-docs/warnings.log ]; then
   cat build-docs/warnings.log >&2
   exit 1
 fi
-echo "docs: build-docs/html/index.html, no warnings"
+python3 scripts/python_api.py build-docs/python-api.md
+echo "docs: build-docs/html/index.html, no warnings; the Python API in build-docs/python-api.md"
