@@ -3,6 +3,7 @@
 // beside a committing writer, the manifest (missing, extra and replaced tiles, maps from before
 // manifests).
 
+#include "backends/disk/tile_file.h"
 #include "disk_test_support.h"
 #include "sanitizers.h"
 #include "iwlomap/outofcore_tile_mapper.h"
@@ -333,6 +334,25 @@ TEST(OutofcoreTileMapper, ThrowsAtOpenWhenATileFileIsReplacedByAnOlderOne) {
 
 // A map as iwlomap wrote it before manifests (format 2: tile_<x>_<y>_<z>.iwt, no manifest) opens
 // with the same contents, gets a manifest and format 3 at its first commit, and goes on.
+// A manifest whose adaptive flag reads as -0.0 (equal to 0.0 as a number) is refused as damaged:
+// the reader accepts each value in exactly the bytes the writer gives it (found by fuzz_manifest).
+TEST(OutofcoreTileMapper, RefusesAManifestWhoseFlagIsNegativeZero) {
+  const TempDir tmp;
+  const std::string dir = tmp.sub("map");
+  write_small_map(dir, 2);
+  const std::string path = (fs::path(dir) / "iwlomap_map.manifest").string();
+  std::vector<std::uint8_t> bytes = read_bytes(path);
+  const double negative_zero = -0.0;
+  std::memcpy(bytes.data() + 32 + 8 * 9, &negative_zero, sizeof negative_zero);
+  const std::uint32_t crc = iwlomap::detail::crc32(bytes.data(), bytes.size() - 4);
+  std::memcpy(bytes.data() + bytes.size() - 4, &crc, sizeof crc);  // little-endian hosts, as the format
+  {
+    std::ofstream out(path, std::ios::binary | std::ios::trunc);
+    out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+  }
+  expect_open_refused(dir, StorageError::Kind::kCorrupt, path, "adaptive_enabled");
+}
+
 TEST(OutofcoreTileMapper, OpensAMapWrittenBeforeManifestsAndConvertsItAtItsFirstCommit) {
   const TempDir tmp;
   const std::string dir = tmp.sub("map");

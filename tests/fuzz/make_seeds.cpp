@@ -94,7 +94,11 @@ void manifest_seeds(const fs::path& dir) {
   m.state.params.occupied_threshold = 0.6;
   m.tiles = {{{-1, 0, 2}, 3, 400, 12, 0x1234abcdu}, {{0, 0, 0}, 7, 980, 51, 0x0badf00du}, {{5, -2, 1}, 0, 81, 1, 7u}};
   m.retired = {{{0, 0, 0}, 4}};
-  write(dir / "tiles.manifest", d::encode_manifest(m));
+  std::vector<std::uint8_t> tiles = d::encode_manifest(m);
+  write(dir / "tiles.manifest", tiles);
+  // A fuzzing find: adaptive_enabled as -0.0 (equal to 0.0, but not its bytes) must be refused.
+  put_f64(tiles, 32 + 8 * 9, -0.0);
+  write(dir / "negative_zero_flag.manifest", tiles);
 }
 
 // fuzz_oculus: one SimplePingResult v1 message of 16 beams x 40 range bins, with and without

@@ -93,7 +93,9 @@ MapManifest decode_manifest(const std::vector<std::uint8_t>& bytes, const std::s
   m.commit = load_u64(p + 16);
   double v[kParams];
   for (int i = 0; i < kParams; ++i) v[i] = load_f64(p + 32 + 8 * i);
-  if (v[9] != 0.0 && v[9] != 1.0) bad(path, "adaptive_enabled is neither 0 nor 1");
+  // The flag's own bytes, not its value: -0.0 equals 0.0 but would be written back as 0.0.
+  const std::uint64_t flag = load_u64(p + 32 + 8 * 9);
+  if (flag != 0 && flag != 0x3ff0000000000000ull) bad(path, "adaptive_enabled is neither 0.0 nor 1.0");
   m.state.params = params_from_array(v);
   try {
     m.state.params.validate();
