@@ -15,10 +15,5 @@ file(GLOB module "${WORK}/target/iwlomap/_iwlomap*.so")
 if(NOT module OR NOT EXISTS "${WORK}/target/iwlomap/__init__.pyi")
   message(FATAL_ERROR "pip installed no extension module or stubs in ${WORK}/target/iwlomap")
 endif()
-execute_process(COMMAND ${CMAKE_COMMAND} -E env "PYTHONPATH=${WORK}/target" ${PYTHON} -c
-  "import iwlomap, numpy as np, os; assert iwlomap.__file__.startswith(os.environ['PYTHONPATH']), iwlomap.__file__; m = iwlomap.ProbabilityUpdater(0.1); m.batch_update_iwlo(np.zeros((1, 3)), np.array([200.0]), np.array([True])); print(iwlomap.__version__, m.get_num_nodes())"
-  WORKING_DIRECTORY "${WORK}" RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
-if(rc OR NOT out MATCHES " 1\n")
-  message(FATAL_ERROR "the pip-installed package does not import and map (${rc}): ${out}${err}")
-endif()
-message(STATUS "pip-installed package: ${out}")
+include(${CMAKE_CURRENT_LIST_DIR}/import_check.cmake)
+iwlomap_expect_package_maps("${WORK}/target" "${WORK}" "${PYTHON}" "pip-installed")
