@@ -2,16 +2,16 @@
 #pragma once
 
 /// \file
-/// OccupancyFilter: a pcl::Filter that integrates each input cloud into an IWLO occupancy map and
-/// returns the occupied voxels of the whole map. A pcl::PCLPointCloud2 input goes through
-/// pointcloud2_to_xyzi() (pointcloud2.h) first.
+/// OccupancyFilter: a pcl::FilterIndices that integrates each input cloud into an IWLO occupancy
+/// map and returns the occupied voxels of the whole map, or the input points that lie in occupied
+/// voxels. A pcl::PCLPointCloud2 input goes through pointcloud2_to_xyzi() (pointcloud2.h) first.
 
 #include <iwlomap/iwlo.h>
 #include <iwlomap/mapper_backend.h>
 #include <iwlomap/sensor_preset.h>
 #include <iwlomap/voxel_colors.h>
 
-#include <pcl/filters/filter.h>
+#include <pcl/filters/filter_indices.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 
@@ -27,13 +27,21 @@ enum class OutputMode {
   /// The input points (within setIndices()) that lie in occupied voxels after this frame was
   /// integrated, with all their fields untouched: a transient point (a moving object in space the
   /// map has seen free, speckle) is removed, so the filter cleans each frame.
-  /// getRemovedIndices() (construct with extract_removed_indices = true), setNegative() and
-  /// setKeepOrganized() work as for PCL's index filters.
+  /// getRemovedIndices() (construct with extract_removed_indices = true), setNegative(),
+  /// setKeepOrganized() and setUserFilterValue() work as for PCL's index filters
+  /// (pcl::FilterIndices); filter(pcl::Indices&) gives this selection in every mode.
   kInputPoints,
 };
 
 /// Integrates clouds into an occupancy map, one call of filter() per frame, and outputs the map's
-/// occupied voxels.
+/// occupied voxels (or, in OutputMode::kInputPoints, the frame's points in occupied voxels).
+///
+/// As a pcl::FilterIndices<PointT>, `filter(pcl::Indices& indices)` integrates the frame like
+/// filter(cloud) and returns the indices (into the input cloud) of the points that lie in occupied
+/// voxels after it, whatever the output mode (a map voxel has no input index); setNegative()
+/// returns the others instead, and getRemovedIndices() holds the complement when the filter was
+/// constructed with extract_removed_indices = true. A point with a non-finite coordinate lies in
+/// no voxel and is never returned.
 ///
 /// Input: points in metres in the map frame, as PCL stores them; `sensor_origin_` of the input
 /// cloud is the sensor position in that frame (the ray origin), and `sensor_orientation_` is only
@@ -59,8 +67,8 @@ enum class OutputMode {
 /// their voxel's mean colour and those of other types no label or other field (a voxel has none);
 /// in OutputMode::kInputPoints every field of a kept point is the input's.
 template <typename PointT>
-class OccupancyFilter : public pcl::Filter<PointT> {
-  using PointCloud = typename pcl::Filter<PointT>::PointCloud;
+class OccupancyFilter : public pcl::FilterIndices<PointT> {
+  using PointCloud = typename pcl::FilterIndices<PointT>::PointCloud;
 
  public:
   using Ptr = std::shared_ptr<OccupancyFilter<PointT>>;
@@ -102,13 +110,10 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   /// kMap (default) or kInputPoints (see OutputMode).
   void setOutputMode(OutputMode mode) { output_mode_ = mode; }
   [[nodiscard]] OutputMode getOutputMode() const { return output_mode_; }
-  /// kInputPoints: output the points that would be removed instead of those kept (off by default).
-  void setNegative(bool negative) { negative_ = negative; }
-  [[nodiscard]] bool getNegative() const { return negative_; }
-  /// kInputPoints: keep the input's size and organisation, the removed points set to NaN in x, y
-  /// and z (off by default: removed points are left out).
-  void setKeepOrganized(bool keep) { keep_organized_ = keep; }
-  [[nodiscard]] bool getKeepOrganized() const { return keep_organized_; }
+  // From pcl::FilterIndices, for kInputPoints and filter(pcl::Indices&):
+  // setNegative(true) selects the points that would be removed instead of those kept (off by
+  // default); setKeepOrganized(true) keeps the input's size and organisation in kInputPoints, the
+  // removed points' x, y and z set to the value of setUserFilterValue() (NaN by default).
 
   /// Probability above which a voxel is output (default 0.7, in (0, 1)).
   void setOccupiedThreshold(double threshold);
@@ -151,17 +156,28 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   [[nodiscard]] std::shared_ptr<const VoxelColorMeans> getVoxelColors() const { return colors_; }
 
  protected:
-  using pcl::Filter<PointT>::filter_name_;
-  using pcl::Filter<PointT>::input_;
-  using pcl::Filter<PointT>::indices_;
-  using pcl::Filter<PointT>::removed_indices_;
-  using pcl::Filter<PointT>::extract_removed_indices_;
+  using pcl::FilterIndices<PointT>::filter_name_;
+  using pcl::FilterIndices<PointT>::input_;
+  using pcl::FilterIndices<PointT>::indices_;
+  using pcl::FilterIndices<PointT>::removed_indices_;
+  using pcl::FilterIndices<PointT>::extract_removed_indices_;
+  using pcl::FilterIndices<PointT>::negative_;
+  using pcl::FilterIndices<PointT>::keep_organized_;
+  using pcl::FilterIndices<PointT>::user_filter_value_;
 
-  /// Integrates input_ (restricted to indices_) into the map and writes its occupied voxels.
+  /// Integrates input_ (restricted to indices_) into the map and writes its occupied voxels (or
+  /// the input points in them, OutputMode::kInputPoints).
   void applyFilter(PointCloud& output) override;
+  /// Integrates input_ (restricted to indices_) into the map and writes the indices of the input
+  /// points in occupied voxels (the others with setNegative()).
+  void applyFilter(pcl::Indices& indices) override;
 
  private:
   void ensureMap();
+  void integrateInput();
+  // The input indices selected after integration (those in occupied voxels, or the others when
+  // negative_), in the order of indices_; the rest go to removed_indices_ when kept.
+  void selectInputPoints(pcl::Indices& selected);
   void outputInputPoints(PointCloud& output);
 
   std::shared_ptr<IMapperBackend> map_;
@@ -177,8 +193,6 @@ class OccupancyFilter : public pcl::Filter<PointT> {
   std::shared_ptr<VoxelColorMeans> colors_;  // with color_means_, created with the map
   bool intensity_warned_ = false;  // the PCL_WARN of setSensorPreset() was logged
   OutputMode output_mode_ = OutputMode::kMap;
-  bool negative_ = false;
-  bool keep_organized_ = false;
 };
 
 }  // namespace iwlomap

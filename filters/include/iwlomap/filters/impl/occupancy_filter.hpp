@@ -8,6 +8,9 @@
 #include <iwlomap/probability_updater.h>
 
 #include <pcl/console/print.h>
+// FilterIndices' own applyFilter(PointCloud&), which the base's vtable names, for point types
+// that PCL did not precompile.
+#include <pcl/filters/impl/filter_indices.hpp>
 
 #include <cmath>
 #include <cstdint>
@@ -18,7 +21,8 @@
 
 namespace iwlomap {
 template <typename PointT>
-OccupancyFilter<PointT>::OccupancyFilter(bool extract_removed_indices) : pcl::Filter<PointT>(extract_removed_indices) {
+OccupancyFilter<PointT>::OccupancyFilter(bool extract_removed_indices)
+    : pcl::FilterIndices<PointT>(extract_removed_indices) {
   filter_name_ = "OccupancyFilter";
 }
 
@@ -107,7 +111,7 @@ void OccupancyFilter<PointT>::ensureMap() {
 }
 
 template <typename PointT>
-void OccupancyFilter<PointT>::applyFilter(PointCloud& output) {
+void OccupancyFilter<PointT>::integrateInput() {
   ensureMap();
   if (!intensity_warned_) {
     const IwloParams p = map_->get_params();
@@ -124,6 +128,11 @@ void OccupancyFilter<PointT>::applyFilter(PointCloud& output) {
     }
   }
   integrate_cloud(*map_, *input_, indices_.get(), ray_casting_, max_range_, colors_.get());
+}
+
+template <typename PointT>
+void OccupancyFilter<PointT>::applyFilter(PointCloud& output) {
+  integrateInput();
   if (output_mode_ == OutputMode::kInputPoints)
     outputInputPoints(output);
   else
@@ -131,43 +140,62 @@ void OccupancyFilter<PointT>::applyFilter(PointCloud& output) {
 }
 
 template <typename PointT>
-void OccupancyFilter<PointT>::outputInputPoints(PointCloud& output) {
+void OccupancyFilter<PointT>::applyFilter(pcl::Indices& indices) {
+  integrateInput();
+  selectInputPoints(indices);
+}
+
+template <typename PointT>
+void OccupancyFilter<PointT>::selectInputPoints(pcl::Indices& selected) {
   const double threshold = map_->get_params().occupied_threshold;
   const PointCloud& in = *input_;
   const std::size_t n = indices_ ? indices_->size() : in.size();
+  selected.clear();
   removed_indices_->clear();
-  std::vector<bool> keep(n, false);
   for (std::size_t i = 0; i < n; ++i) {
-    const auto index = indices_ ? static_cast<std::size_t>((*indices_)[i]) : i;
-    const PointT& p = in[index];
+    const auto index = indices_ ? (*indices_)[i] : static_cast<pcl::index_t>(i);
+    const PointT& p = in[static_cast<std::size_t>(index)];
+    const bool finite = std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z);
     bool occupied = false;
-    if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z)) {
+    if (finite) {
       const auto state = map_->query(Eigen::Vector3d(p.x, p.y, p.z));
       occupied = state && state->probability > threshold;
     }
     // A non-finite point lies in no voxel: it is removed in both modes.
-    keep[i] = occupied != negative_ && std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z);
-    if (!keep[i] && extract_removed_indices_) removed_indices_->push_back(static_cast<pcl::index_t>(index));
+    if (finite && occupied != negative_)
+      selected.push_back(index);
+    else if (extract_removed_indices_)
+      removed_indices_->push_back(index);
   }
+}
+
+template <typename PointT>
+void OccupancyFilter<PointT>::outputInputPoints(PointCloud& output) {
+  pcl::Indices selected;
+  selectInputPoints(selected);
+  const PointCloud& in = *input_;
   const auto header = in.header;
   const auto origin = in.sensor_origin_;
   const auto orientation = in.sensor_orientation_;
   if (keep_organized_) {
-    // The input's layout; a point not kept becomes NaN (in-place use: output may be the input).
+    // The input's layout; a point not selected (or outside indices_) gets the user filter value
+    // in x, y and z (in-place use: output may be the input).
+    std::vector<bool> kept(in.size(), false);
+    for (const pcl::index_t i : selected) kept[static_cast<std::size_t>(i)] = true;
     PointCloud out = in;
-    const float nan = std::numeric_limits<float>::quiet_NaN();
-    std::vector<bool> kept_index(in.size(), indices_ ? false : true);
-    for (std::size_t i = 0; i < n; ++i)
-      kept_index[indices_ ? static_cast<std::size_t>((*indices_)[i]) : i] = keep[i];
+    const float value = user_filter_value_;
+    bool replaced = false;
     for (std::size_t j = 0; j < out.size(); ++j)
-      if (!kept_index[j]) out[j].x = out[j].y = out[j].z = nan;
-    out.is_dense = false;
+      if (!kept[j]) {
+        out[j].x = out[j].y = out[j].z = value;
+        replaced = true;
+      }
+    if (replaced && !std::isfinite(value)) out.is_dense = false;
     output = std::move(out);
   } else {
     PointCloud out;
-    out.reserve(n);
-    for (std::size_t i = 0; i < n; ++i)
-      if (keep[i]) out.push_back(in[indices_ ? static_cast<std::size_t>((*indices_)[i]) : i]);
+    out.reserve(selected.size());
+    for (const pcl::index_t i : selected) out.push_back(in[static_cast<std::size_t>(i)]);
     out.width = static_cast<std::uint32_t>(out.size());
     out.height = 1;
     out.is_dense = true;
