@@ -67,6 +67,12 @@ std::optional<double> finite_number(const std::string& w) {
 }
 
 // Reads header lines (up to the line that starts with `last`) with the offset of the data after it.
+// The text of a comment line after its marker (which ends at \p marker_end) and the blanks after it.
+std::string after_marker(const std::string& line, std::size_t marker_end) {
+  const std::size_t start = line.find_first_not_of(" \t", marker_end);
+  return start == std::string::npos ? std::string() : line.substr(start);
+}
+
 struct HeaderLines {
   std::vector<std::string> lines;
   std::uint64_t data_offset = 0;
@@ -198,6 +204,7 @@ CloudHeader check_pcd(const std::string& path, std::uint64_t file_size) {
   for (std::size_t line_number = 1; line_number <= h.lines.size(); ++line_number) {
     const std::string& line = h.lines[line_number - 1];
     const auto w = words(line);
+    if (!w.empty() && w[0][0] == '#') out.comments.push_back(after_marker(line, line.find('#') + 1));
     if (w.empty() || w[0][0] == '#') continue;
     const std::string& key = w[0];
     // A header line given twice is refused, not decided by which comes last.
@@ -334,6 +341,7 @@ CloudHeader check_ply(const std::string& path, std::uint64_t file_size) {
   int xyz = 0;
   for (std::size_t i = 1; i < h.lines.size(); ++i) {
     const auto w = words(h.lines[i]);
+    if (!w.empty() && w[0] == "comment") out.comments.push_back(after_marker(h.lines[i], h.lines[i].find("comment") + 7));
     if (w.empty() || w[0] == "comment" || w[0] == "obj_info" || w[0] == "end_header") continue;
     if (w[0] == "format") {
       if (w.size() != 3) fail(path, "bad format line '" + h.lines[i] + "'");

@@ -17,6 +17,7 @@
 
 #include <optional>
 #include <string>
+#include <vector>
 
 namespace iwlomap::tool {
 
@@ -26,6 +27,8 @@ struct CloudHeader {
   std::uint64_t fields = 0;      ///< entries of FIELDS (PCD)
   std::uint64_t point_size = 0;  ///< bytes per point (PCD)
   bool has_viewpoint = false;
+  /// The header's comment lines without their marker ('#' in PCD, "comment " in PLY), in order.
+  std::vector<std::string> comments;
 };
 
 /// Checks the header of the .pcd or .ply file \p path against the formats and against the size

@@ -13,9 +13,12 @@
 #include <pcl/register_point_struct.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
+#include <sstream>
 #include <stdexcept>
 
 namespace iwlomap::tool {
@@ -34,6 +37,39 @@ POINT_CLOUD_REGISTER_POINT_STRUCT(iwlomap::tool::ColoredVoxel,
 namespace iwlomap::tool {
 
 namespace {
+
+constexpr const char* kMapComment = "iwlomap map";
+
+// The comment line of \p info (the resolution in the fewest digits that read back exactly).
+std::string map_comment(const MapCloudInfo& info) {
+  return std::string(kMapComment) + " resolution " + shortest(info.resolution) + " positions " +
+         (info.mean_positions ? "means" : "centres");
+}
+
+// The MapCloudInfo of the first comment that starts with kMapComment; one that does but does not
+// parse is refused, naming \p path.
+std::optional<MapCloudInfo> parse_map_comment(const std::vector<std::string>& comments, const std::string& path) {
+  for (const std::string& c : comments) {
+    if (c.rfind(kMapComment, 0) != 0) continue;
+    std::istringstream in(c.substr(std::string(kMapComment).size()));
+    std::string key1, value, key2, positions, rest;
+    in >> key1 >> value >> key2 >> positions;
+    MapCloudInfo info;
+    std::size_t used = 0;
+    try {
+      info.resolution = std::stod(value, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (key1 != "resolution" || used != value.size() || !(info.resolution > 0.0 && std::isfinite(info.resolution)) ||
+        key2 != "positions" || (positions != "centres" && positions != "means") || (in >> rest))
+      throw std::runtime_error("'" + path + "': malformed map comment '" + c +
+                               "' (expected 'iwlomap map resolution METRES positions centres|means')");
+    info.mean_positions = positions == "means";
+    return info;
+  }
+  return std::nullopt;
+}
 
 void write_empty(const std::string& path, const std::string& ext, const std::string& shown_as) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
@@ -107,23 +143,46 @@ LoadedCloud load_cloud(const std::string& path, float missing_intensity) {
   blob_to_xyzi(blob, missing_intensity, path, *out.cloud, out.colors);
   out.cloud->sensor_origin_ = origin;
   out.cloud->sensor_orientation_ = orientation;
+  out.map_info = parse_map_comment(header.comments, path);
   return out;
 }
 
 namespace {
+
+// Adds \p comment to the header of the .pcd or .ply file \p file: after a PCD's first line (its
+// format comment), or after a PLY's format line. The file is rewritten whole; the clouds written
+// this way are the tool's map outputs, which take a small part of a run.
+void add_header_comment(const std::string& file, const std::string& ext, const std::string& comment,
+                        const std::string& shown_as) {
+  std::string bytes;
+  {
+    std::ifstream in(file, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    if (!in.good() && !in.eof()) throw std::runtime_error("cannot read back '" + shown_as + "'");
+  }
+  const std::size_t format = ext == ".pcd" ? 0 : bytes.find("\nformat ");
+  const std::size_t eol = format == std::string::npos ? format : bytes.find('\n', format + (ext == ".pcd" ? 0 : 1));
+  if (eol == std::string::npos) throw std::logic_error("add_header_comment: no line to follow in '" + shown_as + "'");
+  bytes.insert(eol + 1, (ext == ".pcd" ? "# " : "comment ") + comment + "\n");
+  std::ofstream out(file, std::ios::binary | std::ios::trunc);
+  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  out.close();
+  if (!out) throw std::runtime_error("cannot write '" + shown_as + "'");
+}
 
 // Writes \p cloud as binary .pcd or .ply; \p min_point_bytes per point is the least a complete
 // file holds (PCL's PLY writer does not check its stream: a short file, a full disk, is caught by
 // its size).
 template <typename PointT>
 void save_any(const std::string& file, const pcl::PointCloud<PointT>& cloud, std::size_t min_point_bytes,
-              const std::string& shown_as) {
+              const std::string& shown_as, const std::optional<MapCloudInfo>& info) {
   const std::string ext = extension(file);
   if (ext != ".pcd" && ext != ".ply")
     throw std::runtime_error("'" + shown_as + "': unsupported output format (use .pcd or .ply)");
   if (cloud.empty()) {
     // PCL's writers refuse a cloud without points; an empty map is still a valid result.
     write_empty(file, ext, shown_as);
+    if (info) add_header_comment(file, ext, map_comment(*info), shown_as);
     return;
   }
   const int rc = ext == ".pcd" ? pcl::io::savePCDFileBinary(file, cloud) : pcl::io::savePLYFileBinary(file, cloud);
@@ -131,16 +190,18 @@ void save_any(const std::string& file, const pcl::PointCloud<PointT>& cloud, std
   const auto size = std::filesystem::file_size(file, ec);
   if (rc < 0 || ec || size < cloud.size() * min_point_bytes)
     throw std::runtime_error("cannot write '" + shown_as + "'" + (ec ? ": " + ec.message() : std::string()));
+  if (info) add_header_comment(file, ext, map_comment(*info), shown_as);
 }
 
 }  // namespace
 
-void save_cloud(const std::string& file, const pcl::PointCloud<pcl::PointXYZI>& cloud, const std::string& shown_as) {
-  save_any(file, cloud, 3 * sizeof(float), shown_as);
+void save_cloud(const std::string& file, const pcl::PointCloud<pcl::PointXYZI>& cloud, const std::string& shown_as,
+                const std::optional<MapCloudInfo>& info) {
+  save_any(file, cloud, 3 * sizeof(float), shown_as, info);
 }
 
 void save_cloud(const std::string& file, const pcl::PointCloud<pcl::PointXYZI>& cloud, const ColorMatrix& colors,
-                const std::string& shown_as) {
+                const std::string& shown_as, const std::optional<MapCloudInfo>& info) {
   if (colors.rows() != static_cast<Eigen::Index>(cloud.size()))
     throw std::logic_error("save_cloud: " + std::to_string(colors.rows()) + " colours for " +
                            std::to_string(cloud.size()) + " points");
@@ -163,7 +224,7 @@ void save_cloud(const std::string& file, const pcl::PointCloud<pcl::PointXYZI>& 
   out.is_dense = cloud.is_dense;
   out.sensor_origin_ = cloud.sensor_origin_;
   out.sensor_orientation_ = cloud.sensor_orientation_;
-  save_any(file, out, 3 * sizeof(float) + 3, shown_as);
+  save_any(file, out, 3 * sizeof(float) + 3, shown_as, info);
 }
 
 Eigen::Isometry3d viewpoint_pose(const pcl::PointCloud<pcl::PointXYZI>& cloud) {

@@ -62,7 +62,7 @@ int run_export(const std::vector<std::string>& argv) {
   } else {
     pcl::PointCloud<pcl::PointXYZI> occupied;
     occupied_to_cloud(*map, threshold, occupied);
-    save_cloud(files.temporary(*output), occupied, *output);
+    save_cloud(files.temporary(*output), occupied, *output, MapCloudInfo{map->get_resolution(), false});
   }
   files.commit();
   std::cout << "wrote " << *output << " from " << input << " (" << map->get_backend_type() << " map, "

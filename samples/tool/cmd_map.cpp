@@ -302,10 +302,11 @@ int run_map(const std::vector<std::string>& argv) {
   std::size_t coloured = 0;
   if (colors)
     for (Eigen::Index i = 0; i < voxels.rows(); ++i) coloured += colors->hits(voxels.row(i).head<3>().transpose()) > 0;
+  const MapCloudInfo info{setup.map->get_resolution(), mean_positions};
   if (output && colors)
-    save_cloud(files.temporary(*output), occupied, colors->colors_at(voxels), *output);
+    save_cloud(files.temporary(*output), occupied, colors->colors_at(voxels), *output, info);
   else if (output)
-    save_cloud(files.temporary(*output), occupied, *output);
+    save_cloud(files.temporary(*output), occupied, *output, info);
   write_map_outputs(extra, files, *setup.map, threshold, colors ? &*colors : nullptr);
   if (poses_out)
     write_trajectory(files.temporary(*poses_out), integrated_poses, all_stamped ? stamps : std::vector<double>{},

@@ -151,7 +151,7 @@ int run_map_mpi(const Args& args, const std::vector<std::string>& inputs, const 
     if (output) {
       pcl::PointCloud<pcl::PointXYZI> occupied;
       voxels_to_cloud(voxels, occupied);
-      save_cloud(files.temporary(*output), occupied, *output);
+      save_cloud(files.temporary(*output), occupied, *output, MapCloudInfo{resolution, false});
     }
     if (whole_map) {
       const auto whole = make_backend("RAM", resolution);

@@ -36,8 +36,9 @@ SCAN holds points in the sensor frame (metres). The output ends with one line
 (metres; unit quaternion): the scan's sensor pose in the map frame, preceded by score, rmse,
 iterations and converged. ICP aligns to a MAP cloud's own points: voxel centres place a surface
 up to half a voxel off, and the pose with them; 'iwlomap map --mean-positions' writes the mean hit
-positions instead (give --resolution then), which are on the surface. Exit code 1 when the registration did not converge (the pose line then
-gives the initial pose), with the reason on standard error.
+positions instead, which are on the surface. A map cloud that 'iwlomap map', 'sonar' or 'export'
+wrote records its resolution in a header comment. Exit code 1 when the registration did not
+converge (the pose line then gives the initial pose), with the reason on standard error.
 
 options:
   --map MAP                 the map
@@ -45,7 +46,9 @@ options:
   --initial "X Y Z ROLL PITCH YAW"   initial sensor pose in the map frame (metres, degrees;
                             roll about x, pitch about y, yaw about z, applied z-y-x; default: the
                             scan file's VIEWPOINT)
-  --resolution M            voxel edge of a MAP cloud (default: inferred from its voxel centres)
+  --resolution M            voxel edge of a MAP cloud (default: the one its header records, else
+                            inferred from its voxel centres; refused when it differs from the
+                            recorded one)
 )";
 
 }  // namespace

@@ -355,7 +355,7 @@ int run_sonar(const std::vector<std::string>& argv) {
   }
   pcl::PointCloud<pcl::PointXYZI> occupied;
   occupied_to_cloud(*setup.map, setup.params.occupied_threshold, occupied);
-  save_cloud(files.temporary(*output), occupied, *output);
+  save_cloud(files.temporary(*output), occupied, *output, MapCloudInfo{setup.map->get_resolution(), false});
   write_map_outputs(extra, files, *setup.map, setup.params.occupied_threshold);
   files.commit();
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();

@@ -64,6 +64,13 @@ std::unique_ptr<IMapperBackend> map_from_voxel_cloud(const LoadedCloud& cloud, c
     const double p = c[i].intensity > 0.0f && c[i].intensity < 1.0f ? c[i].intensity : 0.9;
     log_odds[r] = iwlo::log_odds(p);
   }
+  if (cloud.map_info) {
+    if (resolution && *resolution != cloud.map_info->resolution) {
+      throw UsageError("'" + path + "' records a resolution of " + shortest(cloud.map_info->resolution) +
+                       " m; --resolution " + shortest(*resolution) + " differs");
+    }
+    resolution = cloud.map_info->resolution;
+  }
   if (!resolution) {
     resolution = infer_resolution(v);
     if (!resolution || !on_voxel_lattice(v, *resolution))

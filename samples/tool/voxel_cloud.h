@@ -25,8 +25,9 @@ namespace iwlomap::tool {
 [[nodiscard]] bool on_voxel_lattice(const Eigen::MatrixXd& v, double resolution);
 
 /// A map from \p cloud, voxel centres read from \p path: each voxel gets the log-odds of its
-/// point's intensity when that is a probability in (0, 1) (p 0.9 otherwise), at \p resolution
-/// or the inferred voxel size. Throws UsageError naming \p path when the voxel size cannot be told.
+/// point's intensity when that is a probability in (0, 1) (p 0.9 otherwise), at the resolution
+/// the file records (MapCloudInfo), \p resolution, or the inferred voxel size. Throws UsageError
+/// naming \p path when the voxel size cannot be told or \p resolution differs from the recorded one.
 [[nodiscard]] std::unique_ptr<IMapperBackend> map_from_voxel_cloud(const LoadedCloud& cloud, const std::string& path,
                                                                    std::optional<double> resolution);
 
