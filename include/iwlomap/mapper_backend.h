@@ -26,6 +26,7 @@
 
 #include "iwlomap/hit_statistics.h"
 #include "iwlomap/iwlo.h"
+#include "iwlomap/progress.h"
 #include "iwlomap/ray_caster.h"
 #include "iwlomap/voxel_key.h"
 #include "iwlomap/voxel_state.h"
@@ -39,6 +40,7 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace iwlomap {
@@ -215,8 +217,17 @@ class IMapperBackend {
   /// The thread count in effect (0 resolved to the hardware's count, at least 1).
   [[nodiscard]] int get_num_threads() const noexcept { return num_threads_; }
 
+  /// Reports the progress of this map's long calls to \p callback (iwlomap/progress.h):
+  /// insert_scan() (ProgressStage::kCastingRays, then kUpdatingVoxels) and, for the Disk backend,
+  /// flush() (kWritingTiles). An empty callback (the default) turns the reports off. A backend of
+  /// your own reports what it chooses; the default insert_scan() reports kCastingRays.
+  void set_progress_callback(ProgressCallback callback) { progress_ = std::move(callback); }
+  /// The callback set by set_progress_callback() (empty: none).
+  [[nodiscard]] const ProgressCallback& get_progress_callback() const noexcept { return progress_; }
+
  private:
   int num_threads_ = 1;
+  ProgressCallback progress_;
   IwloParams default_params_;          // the default get_params()
   std::size_t default_skipped_ = 0;    // the default get_num_skipped_points()
 };

@@ -343,14 +343,15 @@ void export_octomap(const IMapperBackend& map, const std::string& path) {
   export_octomap(map, path, map.get_params().occupied_threshold);
 }
 
-void export_octomap(const IMapperBackend& map, const std::string& path, double occupied_threshold) {
+void export_octomap(const IMapperBackend& map, const std::string& path, double occupied_threshold,
+                    const ProgressCallback& progress) {
   const detail::FileFormat f = detail::format_of(path, "export_octomap");
   if (!(occupied_threshold > 0.0 && occupied_threshold < 1.0))
     throw std::invalid_argument("iwlomap: export_octomap: " + detail::describe("occupied_threshold", occupied_threshold) +
                                 " is not in (0, 1)");
   detail::OctreeStream stream(map, f, occupied_threshold, path);
   detail::write_file(path, "export_octomap",
-                     [&](std::ostream& out) { return stream.write(out, map.get_resolution()); });
+                     [&](std::ostream& out) { return stream.write(out, map.get_resolution(), &progress); });
 }
 
 std::unique_ptr<ProbabilityUpdater> import_octomap(const std::string& path) {

@@ -10,6 +10,7 @@
 #include "integrate/absolute_log_odds.h"
 #include "integrate/batch_input.h"
 #include "integrate/hit_accumulator.h"
+#include "integrate/progress_report.h"
 #include "integrate/scan_apply.h"
 #include "integrate/scan_scratch.h"
 #include "integrate/updater.h"
@@ -23,6 +24,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <exception>
 #include <memory>
 #include <mutex>
 #include <stdexcept>
@@ -327,8 +329,8 @@ void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::Matri
   Impl& m = impl();
   detail::check_scan_input(origin, points, intensities, max_range, m.resolution);
   // Rays may be cast on several threads (bit-identical); the octree is then updated on this one.
-  const std::size_t skip =
-      m.scratch.collect(origin, points, intensities, max_range, m.resolution, get_num_threads());
+  const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, get_num_threads(),
+                                             &get_progress_callback());
   // Every voxel the scan would update must have an OctoMap key; checked before anything changes.
   m.scratch.for_each_observation(
       [&](const VoxelKey& block_key, int index) {
@@ -344,11 +346,21 @@ void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::Matri
   const auto observe = [&m](detail::VoxelBlock& b, int index, const VoxelKey& key, double intensity, bool occupied) {
     m.observe(b, index, key, intensity, occupied, 1.0);
   };
-  detail::apply_scan_free(m.scratch, m.grid, 0, m.scratch.num_chunks(), observe);
+  // The octree update is on this thread: reported by 64 chunks (an exception of the callback is
+  // rethrown once the scan is applied in full).
+  std::exception_ptr deferred;
+  const std::size_t chunks = m.scratch.num_chunks();
+  detail::StageProgress report(&get_progress_callback(), ProgressStage::kUpdatingVoxels, chunks + 1, &deferred);
+  for (std::size_t c = 0; c < chunks; c += 64) {
+    detail::apply_scan_free(m.scratch, m.grid, c, std::min(c + 64, chunks), observe);
+    report.report(std::min(c + 64, chunks));
+  }
   detail::apply_scan_hits(m.scratch, m.grid, observe);
+  report.finish();
   m.skipped += skip;
   m.tree_changed();
   m.hits.add_scan(origin, points, intensities, max_range, m.updater.params().intensity_threshold);
+  if (deferred) std::rethrow_exception(deferred);
 }
 
 void OctreeMapper::set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) {

@@ -9,6 +9,7 @@
 // them with OctoMap's own output).
 
 #include "octomap_files.h"
+#include "integrate/progress_report.h"
 #include "iwlomap/mapper_backend.h"
 
 #include <algorithm>
@@ -32,8 +33,9 @@ class OctreeStream {
   /// lies outside OctoMap's key range.
   OctreeStream(const IMapperBackend& map, FileFormat format, double occupied_threshold, const std::string& path);
 
-  /// Writes the whole file (header and data) to \p out; false when the stream failed.
-  bool write(std::ostream& out, double resolution);
+  /// Writes the whole file (header and data) to \p out; false when the stream failed. Reports
+  /// ProgressStage::kWritingFile (blocks) to \p progress; an exception of the callback propagates.
+  bool write(std::ostream& out, double resolution, const ProgressCallback* progress = nullptr);
 
   /// The number of octree nodes the file holds (its header's "size"); valid after write().
   [[nodiscard]] std::uint64_t num_nodes() const noexcept { return nodes_; }
@@ -86,6 +88,8 @@ class OctreeStream {
   };
   Bytes data_;
   std::uint64_t nodes_ = 0;
+  StageProgress* report_ = nullptr;  // during write()
+  std::size_t runs_written_ = 0;
   // The block being written, by Morton code inside it.
   std::uint64_t known_[8] = {};
   std::uint64_t occupied_[8] = {};  // .bt

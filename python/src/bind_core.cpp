@@ -457,6 +457,17 @@ void bind_backend(py::module_& m) {
           "set_num_threads", [](Backend& map, int t) { unlocked(map, [&] { map.set_num_threads(t); }); },
           py::arg("threads"), "Threads for one call (0: all hardware threads); the map is identical for any count.")
       .def("get_num_threads", [](Backend& map) { return unlocked(map, [&] { return map.get_num_threads(); }); })
+      .def(
+          "set_progress_callback",
+          [](Backend& map, const py::object& callback) {
+            ProgressCallback cb = python_progress(callback, map);
+            unlocked(map, [&] { map.set_progress_callback(std::move(cb)); });
+          },
+          py::arg("callback"),
+          "callback(stage, done, total) hears the progress of insert_scan() (stage 'casting rays', then "
+          "'updating voxels') and of a Disk map's flush() ('writing tiles'), on the calling thread; None turns it "
+          "off. An exception it raises while rays are cast cancels the scan (map unchanged); later ones are raised "
+          "once the call is done. Calling into the map from it raises RuntimeError.")
       .def("__repr__", [](Backend& map) {
         return "<iwlomap " + map.get_backend_type() + " map, " + std::to_string(map.get_num_nodes()) +
                " known voxels at " + std::to_string(map.get_resolution()) + " m>";
@@ -671,6 +682,23 @@ void refuse_call_from_visitor(const IMapperBackend& map) {
     throw std::runtime_error(
         "iwlomap: a for_each_voxel() visitor may not call into the map it visits (the visit holds the map); "
         "collect what you need in the visitor and call after it, or use get_voxels()");
+}
+
+ProgressCallback python_progress(const py::object& fn, const IMapperBackend& map) {
+  if (fn.is_none()) return {};
+  if (!PyCallable_Check(fn.ptr())) throw py::type_error("progress: expected a callable(stage, done, total) or None");
+  // The callback may be dropped where the GIL is not held (replaced inside a call): its Python
+  // object is released under the GIL.
+  const std::shared_ptr<py::object> held(new py::object(fn), [](py::object* o) {
+    py::gil_scoped_acquire gil;
+    delete o;
+  });
+  const IMapperBackend* target = &map;
+  return [held, target](const ProgressReport& r) {
+    py::gil_scoped_acquire gil;
+    const VisitScope scope(*target);
+    (*held)(progress_stage_name(r.stage), r.done, r.total);
+  };
 }
 
 VisitScope::VisitScope(const IMapperBackend& map) { visiting.push_back(&map); }

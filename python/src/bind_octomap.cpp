@@ -76,19 +76,20 @@ void bind_octomap(py::module_& m) {
           py::arg("path"), "Replaces the map by a .bt/.ot file at its resolution; True (failures raise).");
   m.def(
       "export_octomap",
-      [](IMapperBackend& map, const py::handle& path, std::optional<double> occupied_threshold) {
+      [](IMapperBackend& map, const py::handle& path, std::optional<double> occupied_threshold,
+         const py::object& progress) {
         const std::string file = path_from(path);
+        const ProgressCallback cb = python_progress(progress, map);
         unlocked(map, [&] {
           with_file_errors(file, [&] {
-            if (occupied_threshold)
-              export_octomap(map, file, *occupied_threshold);
-            else
-              export_octomap(map, file);
+            export_octomap(map, file, occupied_threshold ? *occupied_threshold : map.get_params().occupied_threshold, cb);
           });
         });
       },
-      py::arg("map"), py::arg("path"), py::arg("occupied_threshold") = py::none(),
-      "Writes any map as an OctoMap file: .bt (occupancy at the map's threshold, or occupied_threshold) or .ot.");
+      py::arg("map"), py::arg("path"), py::arg("occupied_threshold") = py::none(), py::arg("progress") = py::none(),
+      "Writes any map as an OctoMap file: .bt (occupancy at the map's threshold, or occupied_threshold) or .ot. "
+      "progress(stage, done, total), when given, hears 'writing the file' by blocks; an exception it raises cancels "
+      "the export and leaves no file.");
   m.def(
       "import_octomap",
       [](const py::handle& path, IMapperBackend* map) -> py::object {

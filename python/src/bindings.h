@@ -68,6 +68,11 @@ auto unlocked(const IMapperBackend& map, F&& f) -> decltype(f()) {
   return f();
 }
 
+/// A ProgressCallback that calls \p fn(stage, done, total) (stage a str, progress_stage_name())
+/// with the GIL held; a call from it into \p map raises RuntimeError, as from a visitor. None
+/// gives an empty callback.
+ProgressCallback python_progress(const pybind11::object& fn, const IMapperBackend& map);
+
 /// A path argument: str or os.PathLike.
 std::string path_from(const pybind11::handle& obj);
 

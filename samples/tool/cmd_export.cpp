@@ -6,6 +6,7 @@
 #include "commands.h"
 #include "map_open.h"
 #include "output_files.h"
+#include "progress.h"
 
 #include <iwlomap/filters/cloud_conversions.h>
 
@@ -13,6 +14,7 @@
 #include <iwlomap/octree_mapper.h>
 #endif
 
+#include <filesystem>
 #include <iostream>
 #include <stdexcept>
 
@@ -29,11 +31,12 @@ resolution and read tile by tile, so a map larger than RAM exports with bounded 
                       .bt / .ot: the whole map as an OctoMap file (needs the OctoMap layer)
   --threshold P       voxels with probability > P are occupied (default 0.7)
   --cache-tiles N     tiles a tile directory may hold in RAM while exporting (default 4)
+  -q, --quiet         no progress bar, no summary line
 )";
 }  // namespace
 
 int run_export(const std::vector<std::string>& argv) {
-  const Args args(argv, {"-o", "--output", "--threshold", "--cache-tiles"}, {"-h", "--help"});
+  const Args args(argv, {"-o", "--output", "--threshold", "--cache-tiles"}, {"-h", "--help", "-q", "--quiet"});
   if (args.flag("-h") || args.flag("--help")) {
     std::cout << kHelp;
     return 0;
@@ -46,6 +49,7 @@ int run_export(const std::vector<std::string>& argv) {
   OutputFiles files(args);
   files.add("-o", *output, {".pcd", ".ply", ".bt", ".ot"});
   const std::string ext = extension(*output);
+  const bool quiet = args.flag("-q") || args.flag("--quiet");
   const double threshold = args.number("--threshold", 0.7);
   if (!(threshold > 0.0 && threshold < 1.0)) throw UsageError("--threshold must be in (0, 1)");
   const long cache = args.integer("--cache-tiles", 4);
@@ -54,17 +58,28 @@ int run_export(const std::vector<std::string>& argv) {
   const auto map = open_map(input, static_cast<std::size_t>(cache));
   if (ext == ".bt" || ext == ".ot") {
 #ifdef IWLOMAP_HAVE_OCTOMAP
-    // .bt stores occupied / free by this threshold
-    files.write(*output, [&](const std::string& file) { export_octomap(*map, file, threshold); });
+    // .bt stores occupied / free by this threshold; the bar follows the blocks written.
+    Progress bar("writing", 1, !quiet);
+    const std::string name = std::filesystem::path(*output).filename().string();
+    files.write(*output, [&](const std::string& file) {
+      export_octomap(*map, file, threshold, [&](const ProgressReport& r) {
+        bar.update(r.total == 0 ? 1.0 : static_cast<double>(r.done) / static_cast<double>(r.total),
+                   name + ": " + progress_stage_name(r.stage));
+      });
+    });
 #else
     throw std::runtime_error("writing OctoMap files needs the OctoMap layer (build with -DIWLOMAP_WITH_OCTOMAP=ON)");
 #endif
   } else {
+    show_status(!quiet, "reading the occupied voxels of " + input);
     pcl::PointCloud<pcl::PointXYZI> occupied;
     occupied_to_cloud(*map, threshold, occupied);
+    show_status(!quiet, "writing " + *output);
     save_cloud(files.temporary(*output), occupied, *output, MapCloudInfo{map->get_resolution(), false});
   }
   files.commit();
+  show_status(!quiet, "");
+  if (quiet) return 0;
   std::cout << "wrote " << *output << " from " << input << " (" << map->get_backend_type() << " map, "
             << map->get_num_nodes() << " known voxels at " << map->get_resolution() << " m)\n";
   return 0;

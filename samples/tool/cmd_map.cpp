@@ -274,6 +274,9 @@ int run_map(const std::vector<std::string>& argv) {
           colors->add_observations(xyz, intensity, std::vector<bool>(static_cast<std::size_t>(xyz.rows()), true),
                                    *in.colors, setup.map->get_params());
       }
+      // The bar moves within the file as its rays are cast and its voxels updated (not with
+      // --async, whose scans go in on another thread).
+      if (!background) setup.map->set_progress_callback(progress_within(progress, i, name));
       if (background)
         background->integrate(origin, std::move(xyz), std::move(intensity), setup.max_range);
       else if (loop_closure)
@@ -284,6 +287,7 @@ int run_map(const std::vector<std::string>& argv) {
         } catch (const std::invalid_argument& e) {  // the library's word on this file's data
           throw std::runtime_error("'" + inputs[i] + "': " + e.what());
         }
+      setup.map->set_progress_callback({});
       progress.update(i + 1, name);
     }
     if (background) background->sync();
@@ -292,8 +296,16 @@ int run_map(const std::vector<std::string>& argv) {
     warn_skipped_points("map", skipped, points, setup.map->get_resolution(), setup.ray_casting);
   // A disk map is complete and durable before any output describes it: a failing final flush
   // fails the run before an output is written (and leaves the map as it was).
+  setup.map->set_progress_callback([quiet](const ProgressReport& r) {
+    show_status(!quiet, "writing the map's tiles: " + std::to_string(r.done) + " of " + std::to_string(r.total));
+  });
   commit.commit();
-  show_status(!quiet, "writing the outputs");
+  setup.map->set_progress_callback({});
+  const auto mapped = std::chrono::steady_clock::now();
+  Progress writing("writing", static_cast<std::size_t>(output.has_value()) + map_outputs_count(extra) +
+                                  static_cast<std::size_t>(poses_out.has_value()), !quiet);
+  std::size_t written_items = 0;
+  if (output) writing.update(written_items, std::filesystem::path(*output).filename().string());
   const double threshold = setup.params.occupied_threshold;
   const Eigen::MatrixXd voxels =
       mean_positions ? setup.map->get_occupied_mean_positions(threshold) : setup.map->get_occupied_voxels(threshold);
@@ -307,13 +319,20 @@ int run_map(const std::vector<std::string>& argv) {
     save_cloud(files.temporary(*output), occupied, colors->colors_at(voxels), *output, info);
   else if (output)
     save_cloud(files.temporary(*output), occupied, *output, info);
-  write_map_outputs(extra, files, *setup.map, threshold, colors ? &*colors : nullptr);
-  if (poses_out)
+  written_items += output ? 1 : 0;
+  written_items = write_map_outputs(extra, files, *setup.map, threshold, colors ? &*colors : nullptr,
+                                    MapOutputsProgress{&writing, written_items});
+  if (poses_out) {
+    writing.update(written_items, std::filesystem::path(*poses_out).filename().string());
     write_trajectory(files.temporary(*poses_out), integrated_poses, all_stamped ? stamps : std::vector<double>{},
                      trajectory_format_of(*poses_out));
+    ++written_items;
+  }
   files.commit();
-  show_status(!quiet, "");
-  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+  writing.update(written_items);
+  writing.finish();
+  const double seconds = std::chrono::duration<double>(mapped - started).count();
+  const double writing_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - mapped).count();
   if (!quiet) {
     std::cout << "mapped " << inputs.size() << " file(s), " << points << " points ("
               << setup.map->get_num_skipped_points() << " skipped) at " << setup.map->get_resolution() << " m, "
@@ -321,7 +340,7 @@ int run_map(const std::vector<std::string>& argv) {
               << " preset: " << setup.map->get_num_nodes() << " known voxels, "
               << occupied.size() << " occupied (p > " << threshold << ")"
               << (colors ? ", " + std::to_string(coloured) + " of them coloured" : std::string()) << " in " << seconds
-              << " s\n";
+              << " s; outputs written in " << writing_seconds << " s\n";
     if (register_scans) {
       std::cout << "registered " << registered_files << " of " << inputs.size() << " file(s)\n";
       for (const std::string& c : corrections) std::cout << "  " << c << "\n";

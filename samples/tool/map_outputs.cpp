@@ -2,7 +2,9 @@
 #include "map_outputs.h"
 
 #include "args.h"
+#include "progress.h"
 
+#include <filesystem>
 #include <stdexcept>
 
 #ifdef IWLOMAP_HAVE_OCTOMAP
@@ -43,13 +45,36 @@ MapOutputs map_outputs_from(const Args& args, OutputFiles& files) {
   return out;
 }
 
-void write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMapperBackend& map, double min_probability,
-                       const VoxelColorMeans* colors) {
+std::size_t map_outputs_count(const MapOutputs& outputs) {
+  return static_cast<std::size_t>(outputs.octomap.has_value()) + static_cast<std::size_t>(outputs.snapshot.has_value());
+}
+
+std::size_t write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMapperBackend& map,
+                              double min_probability, const VoxelColorMeans* colors, MapOutputsProgress progress) {
+  std::size_t item = progress.first_item;
+  const auto starting = [&](const std::string& path) {
+    if (progress.bar != nullptr) progress.bar->update(item, std::filesystem::path(path).filename().string());
+  };
 #ifdef IWLOMAP_HAVE_OCTOMAP
-  if (outputs.octomap) files.write(*outputs.octomap, [&](const std::string& file) { export_octomap(map, file); });
+  if (outputs.octomap) {
+    starting(*outputs.octomap);
+    const std::string name = std::filesystem::path(*outputs.octomap).filename().string();
+    ProgressCallback blocks;
+    if (progress.bar != nullptr)
+      blocks = [&progress, item, name](const ProgressReport& r) {
+        progress.bar->update(static_cast<double>(item) +
+                                 (r.total == 0 ? 1.0 : static_cast<double>(r.done) / static_cast<double>(r.total)),
+                             name + ": " + progress_stage_name(r.stage));
+      };
+    files.write(*outputs.octomap, [&](const std::string& file) {
+      export_octomap(map, file, map.get_params().occupied_threshold, blocks);
+    });
+    ++item;
+  }
 #endif
 #ifdef IWLOMAP_HAVE_VIEWER
   if (outputs.snapshot) {
+    starting(*outputs.snapshot);
     const Eigen::MatrixXd voxels = map.get_occupied_voxels(min_probability);
     viewer::SnapshotOptions options;
     options.title = "iwlomap: " + std::to_string(voxels.rows()) + " occupied voxels at " +
@@ -61,6 +86,7 @@ void write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMap
     files.write(*outputs.snapshot, [&](const std::string& file) {
       viewer::SnapshotRenderer::render_png(voxels, map.get_resolution(), options, file);
     });
+    ++item;
   }
 #endif
   (void)outputs;
@@ -68,6 +94,8 @@ void write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMap
   (void)map;
   (void)min_probability;
   (void)colors;
+  (void)starting;
+  return item;
 }
 
 }  // namespace iwlomap::tool

@@ -24,11 +24,22 @@ struct MapOutputs {
 /// UsageError or std::runtime_error.
 [[nodiscard]] MapOutputs map_outputs_from(const class Args& args, OutputFiles& files);
 
+/// The number of outputs \p outputs asks for (0 to 2).
+[[nodiscard]] std::size_t map_outputs_count(const MapOutputs& outputs);
+
+/// A bar that write_map_outputs() moves: each output is one item, from \p first_item on.
+struct MapOutputsProgress {
+  class Progress* bar = nullptr;
+  std::size_t first_item = 0;
+};
+
 /// Writes the requested outputs of \p map into their temporaries in \p files (the snapshot shows
 /// voxels with p > \p min_probability, in their mean colours when \p colors is given, else by
-/// height).
-void write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMapperBackend& map, double min_probability,
-                       const VoxelColorMeans* colors = nullptr);
+/// height), moving \p progress's bar (within the OctoMap file as its blocks are written). Returns
+/// the item after the last one written.
+std::size_t write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMapperBackend& map,
+                              double min_probability, const VoxelColorMeans* colors = nullptr,
+                              MapOutputsProgress progress = {});
 
 /// Help lines for --octomap and --snapshot.
 [[nodiscard]] const char* map_outputs_help();

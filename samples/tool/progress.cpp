@@ -24,11 +24,13 @@ int terminal_columns() {
 }
 }  // namespace
 
-void Progress::update(std::size_t done, const std::string& note) {
+void Progress::update(std::size_t done, const std::string& note) { update(static_cast<double>(done), note); }
+
+void Progress::update(double done, const std::string& note) {
   if (!active_ || total_ == 0) return;
-  const double f = std::min(1.0, static_cast<double>(done) / static_cast<double>(total_));
-  const std::string counts = " " + std::to_string(static_cast<int>(f * 100.0)) + "% " + std::to_string(done) + "/" +
-                             std::to_string(total_);
+  const double f = std::clamp(done / static_cast<double>(total_), 0.0, 1.0);
+  const std::string counts = " " + std::to_string(static_cast<int>(f * 100.0)) + "% " +
+                             std::to_string(static_cast<std::size_t>(std::max(done, 0.0))) + "/" + std::to_string(total_);
   // The line never reaches the last column: a terminal wraps there and the next \r would redraw
   // one line below. The bar shrinks first (to 10 cells), then the note is cut, then the label.
   const int columns = terminal_columns() - 1;
@@ -38,8 +40,18 @@ void Progress::update(std::size_t done, const std::string& note) {
                      std::string(static_cast<std::size_t>(bar - static_cast<int>(f * bar)), ' ') + "]" + counts;
   if (!note.empty()) line += " " + note;
   if (static_cast<int>(line.size()) > columns) line.resize(static_cast<std::size_t>(std::max(columns, 0)));
+  if (line == last_line_) return;
+  last_line_ = line;
   std::fprintf(stderr, "\r%s\x1b[K", line.c_str());
   std::fflush(stderr);
+}
+
+ProgressCallback progress_within(Progress& bar, std::size_t item, const std::string& name) {
+  return [&bar, item, name](const ProgressReport& r) {
+    const double part = r.total == 0 ? 1.0 : static_cast<double>(r.done) / static_cast<double>(r.total);
+    const double within = r.stage == ProgressStage::kCastingRays ? 0.5 * part : 0.5 + 0.5 * part;
+    bar.update(static_cast<double>(item) + std::min(within, 1.0), name + ": " + progress_stage_name(r.stage));
+  };
 }
 
 void show_status(bool enabled, const std::string& text) {

@@ -3,6 +3,8 @@
 
 // A progress bar on stderr, drawn only when stderr is a terminal (logs and pipes stay clean).
 
+#include <iwlomap/progress.h>
+
 #include <cstddef>
 #include <string>
 
@@ -16,13 +18,22 @@ class Progress {
   Progress& operator=(const Progress&) = delete;
   /// Sets the number of finished items and redraws.
   void update(std::size_t done, const std::string& note = {});
+  /// The same with a part of an item done (2.5: two items and half of the third); the count shown
+  /// is the whole items.
+  void update(double done, const std::string& note = {});
   void finish();
 
  private:
   std::string label_;
   std::size_t total_;
   bool active_;
+  std::string last_line_;  // not drawn again when unchanged
 };
+
+/// A callback for IMapperBackend::set_progress_callback() that moves \p bar within item \p item
+/// (the items before it done): the rays are the first half of the item, the voxel updates the
+/// second, and the note names the stage after \p name.
+[[nodiscard]] ProgressCallback progress_within(Progress& bar, std::size_t item, const std::string& name);
 
 /// Shows \p text (cut to the terminal's width) in place on stderr when \p enabled and stderr is a
 /// terminal, e.g. "writing map.ot" during a long export after the bar reached 100 %; an empty

@@ -43,7 +43,8 @@ void IMapperBackend::insert_scan(const Eigen::Vector3d& origin, const Eigen::Mat
   const double r = get_resolution();
   detail::check_scan_input(origin, points, intensities, max_range, r);
   detail::ScanScratch scratch;
-  const std::size_t skipped = scratch.collect(origin, points, intensities, max_range, r, get_num_threads());
+  const std::size_t skipped =
+      scratch.collect(origin, points, intensities, max_range, r, get_num_threads(), &get_progress_callback());
   detail::apply_scratch_by_batches(*this, scratch);
   default_skipped_ += skipped;
 }
@@ -188,6 +189,24 @@ std::optional<VoxelBox> known_voxel_box(const IMapperBackend& map) {
   });
   if (!any) return std::nullopt;
   return box;
+}
+
+}  // namespace iwlomap
+
+namespace iwlomap {
+
+const char* progress_stage_name(ProgressStage stage) noexcept {
+  switch (stage) {
+    case ProgressStage::kCastingRays:
+      return "casting rays";
+    case ProgressStage::kUpdatingVoxels:
+      return "updating voxels";
+    case ProgressStage::kWritingTiles:
+      return "writing tiles";
+    case ProgressStage::kWritingFile:
+      return "writing the file";
+  }
+  return "working";
 }
 
 }  // namespace iwlomap

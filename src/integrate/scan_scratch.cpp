@@ -2,6 +2,7 @@
 #include "integrate/scan_scratch.h"
 
 #include "integrate/batch_input.h"
+#include "integrate/progress_report.h"
 #include "storage/free_memory.h"
 #include "storage/memory_limit.h"
 #include "integrate/scan_ray.h"
@@ -145,13 +146,26 @@ void ScanScratch::merge(const ScanScratch& other) {
 
 std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                  const Eigen::VectorXd& intensities, double max_range, double resolution,
-                                 int threads) {
+                                 int threads, const ProgressCallback* progress) {
   clear();
   const Eigen::Index n = points.rows();
+  StageProgress report(progress, ProgressStage::kCastingRays, static_cast<std::size_t>(n));
   // Below a few thousand rays a thread costs more than it saves.
   const Eigen::Index useful = std::max<Eigen::Index>(1, n / 2048);
   const int t = static_cast<int>(std::min<Eigen::Index>(std::max(threads, 1), useful));
-  if (t == 1) return collect_range(origin, points, intensities, max_range, resolution, 0, n, nullptr);
+  // Rays go in blocks between reports; a block of 4,096 rays takes about a millisecond.
+  constexpr Eigen::Index kReportGrain = 4096;
+  if (t == 1) {
+    if (!report.active()) return collect_range(origin, points, intensities, max_range, resolution, 0, n, nullptr);
+    std::size_t skipped = 0;
+    for (Eigen::Index b = 0; b < n; b += kReportGrain) {
+      skipped += collect_range(origin, points, intensities, max_range, resolution, b, std::min(b + kReportGrain, n),
+                               nullptr);
+      report.report(static_cast<std::size_t>(std::min(b + kReportGrain, n)));
+    }
+    report.finish();
+    return skipped;
+  }
 
   // Rays differ in length by an order of magnitude (a scan's lower rings hit the ground near the
   // sensor), so threads take blocks of rays from a shared counter rather than fixed ranges. Which
@@ -160,6 +174,7 @@ std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::Mat
   // lowest index, as with one thread.
   constexpr Eigen::Index kGrain = 1024;
   std::atomic<Eigen::Index> next{0};
+  std::atomic<Eigen::Index> finished{0};  // rays cast, for the reports of the calling thread
   helpers_.resize(static_cast<std::size_t>(t - 1));
   std::vector<std::size_t> skipped(static_cast<std::size_t>(t), 0);
   std::vector<Eigen::Index> first_bad(static_cast<std::size_t>(t), n);
@@ -168,9 +183,13 @@ std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::Mat
   std::vector<std::exception_ptr> failed(static_cast<std::size_t>(t));
   const auto work = [&](ScanScratch& into, std::size_t k) {
     try {
-      for (Eigen::Index b = next.fetch_add(kGrain); b < n; b = next.fetch_add(kGrain))
+      for (Eigen::Index b = next.fetch_add(kGrain); b < n; b = next.fetch_add(kGrain)) {
         skipped[k] += into.collect_range(origin, points, intensities, max_range, resolution, b,
                                          std::min(b + kGrain, n), &first_bad[k]);
+        const Eigen::Index cast = finished.fetch_add(std::min(b + kGrain, n) - b, std::memory_order_relaxed) +
+                                  std::min(b + kGrain, n) - b;
+        if (k == 0) report.report(static_cast<std::size_t>(cast));  // the calling thread only
+      }
     } catch (...) {
       failed[k] = std::current_exception();
       next.store(n);
@@ -196,6 +215,7 @@ std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::Mat
     merge(helpers_[static_cast<std::size_t>(k - 1)]);
     total += skipped[static_cast<std::size_t>(k)];
   }
+  report.finish();
   return total;
 }
 

@@ -12,6 +12,7 @@
 
 #include "storage/block_grid.h"
 #include "storage/flat_key_map.h"
+#include "iwlomap/progress.h"
 #include "iwlomap/voxel_key.h"
 
 #include <Eigen/Core>
@@ -47,9 +48,12 @@ class ScanScratch {
   /// With \p threads > 1 the threads take blocks of rays from a shared counter, each casting into a
   /// scratch of its own, and the scratches are merged (OR of the free bits, max of the hit
   /// intensities): the observations are bit-identical to threads = 1. An out-of-range point
-  /// throws the error of the lowest such index, as in one thread.
+  /// throws the error of the lowest such index, as in one thread. With \p progress, reports
+  /// ProgressStage::kCastingRays (points walked) from the calling thread; an exception of the
+  /// callback ends the collection (the map is untouched, as above).
   std::size_t collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
-                      const Eigen::VectorXd& intensities, double max_range, double resolution, int threads = 1);
+                      const Eigen::VectorXd& intensities, double max_range, double resolution, int threads = 1,
+                      const ProgressCallback* progress = nullptr);
 
   /// Calls fn(block_key, cells) for every grid block (8^3) that holds an observation, free or
   /// hit, with \p cells (a CellMask) holding each cell of the block (see index_in_block()) that

@@ -63,6 +63,16 @@ expect scalar_intensity_read grep -q "intensity: \[10, 250\]" "$WORK/info_scalar
 check map_pcd 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar -o "$WORK/occupied.pcd"
 expect map_summary grep -q "occupied (p > 0.7)" "$WORK/map_pcd.out"
 expect map_output_exists test -s "$WORK/occupied.pcd"
+expect map_summary_times_apart grep -Eq "in [0-9.e-]+ s; outputs written in [0-9.e-]+ s$" "$WORK/map_pcd.out"
+# The bar moves within one file (a terminal from script(1)): percentages below 100 while the
+# only file is not done (0/1), in both stages; then the writing bar within the .bt file.
+check generate_full_scan 0 "$TOOL" generate -o "$WORK/full_scan.pcd"
+bar_bt=""
+if has_layer octomap; then bar_bt="--octomap '$WORK/bar.bt'"; fi
+check map_bar_in_terminal 0 script -qec "'$TOOL' map '$WORK/full_scan.pcd' --resolution 0.1 -o '$WORK/bar.pcd' $bar_bt" "$WORK/bar.typescript"
+expect map_bar_moves_while_casting grep -aEq "mapping \[#+ +\] [1-4][0-9]% 0/1 full_scan.pcd: casting rays" "$WORK/map_bar_in_terminal.out"
+expect map_bar_moves_while_updating grep -aEq "mapping \[#+ +\] [5-9][0-9]% 0/1 full_scan.pcd: updating voxels" "$WORK/map_bar_in_terminal.out"
+has_layer octomap && expect map_bar_moves_while_writing grep -aEq "writing \[#+ +\] [0-9]+% 1/2 bar.bt: writing the file" "$WORK/map_bar_in_terminal.out"
 check pcl_pcd2ply_opens_output 0 pcl_pcd2ply "$WORK/occupied.pcd" "$WORK/occupied_from_pcl.ply"
 expect pcl_ply_nonempty test -s "$WORK/occupied_from_pcl.ply"
 n_pcd=$(grep -a -m1 '^POINTS' "$WORK/occupied.pcd" | awk '{print $2}')

@@ -173,7 +173,11 @@ class OctreeMapper final : public BackendBase {
 void export_octomap(const IMapperBackend& map, const std::string& path);
 /// As above, with \p occupied_threshold, a probability in (0, 1), instead of the map's own for
 /// ".bt" (ignored for ".ot"): for maps whose parameters cannot change (read-only disk maps).
-void export_octomap(const IMapperBackend& map, const std::string& path, double occupied_threshold);
+/// \p progress, when set, hears ProgressStage::kWritingFile (the map's 8^3 blocks written, from
+/// the calling thread; iwlomap/progress.h); an exception it throws cancels the export and leaves
+/// no file.
+void export_octomap(const IMapperBackend& map, const std::string& path, double occupied_threshold,
+                    const ProgressCallback& progress = {});
 
 /// Reads an OctoMap file (".bt" or ".ot" by extension) into \p map, whose resolution must match
 /// the file's (to the 6 significant digits OctoMap writes). Every voxel of the file is set with

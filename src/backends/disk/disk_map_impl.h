@@ -18,6 +18,7 @@
 #include "integrate/absolute_log_odds.h"
 #include "integrate/batch_apply.h"
 #include "integrate/batch_input.h"
+#include "integrate/progress_report.h"
 #include "integrate/scan_scratch.h"
 #include "integrate/updater.h"
 #include "integrate/voxel_update.h"
@@ -204,10 +205,12 @@ struct OutofcoreTileMapper::Impl {
 
   // Hits are routed like batch observations; free voxels stay in the scan scratch, whose 32^3
   // chunks may straddle tiles: each tile's slot lists the chunks that hold its free voxels.
+  // Reports kCastingRays, then kUpdatingVoxels by tiles (an exception of the callback there is
+  // rethrown once the scan is applied in full).
   void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
-                   double max_range, int threads) {
+                   double max_range, int threads, const ProgressCallback* progress) {
     detail::check_scan_input(origin, points, intensities, max_range, resolution);
-    const std::size_t skip = scratch.collect(origin, points, intensities, max_range, resolution, threads);
+    const std::size_t skip = scratch.collect(origin, points, intensities, max_range, resolution, threads, progress);
     const std::size_t chunks = scratch.num_chunks();
     const std::vector<detail::ScanScratch::Hit>& hits = scratch.hits();
     routing.assign(hits.size(), [&](std::size_t i) { return hits[i].key; });
@@ -254,6 +257,9 @@ struct OutofcoreTileMapper::Impl {
     slot_group.assign(slots, kNoGroup);
     slot_tile.assign(slots, nullptr);
     std::size_t group_id = 0;
+    std::exception_ptr deferred;
+    detail::StageProgress report(progress, ProgressStage::kUpdatingVoxels, slots, &deferred);
+    std::size_t tiles_done = 0;
     for_each_group([&](const std::uint32_t* group_slots, detail::Tile* const* group, std::size_t count) {
       ++group_id;
       for (std::size_t g = 0; g < count; ++g) {
@@ -300,8 +306,12 @@ struct OutofcoreTileMapper::Impl {
           const std::uint32_t s = routing.find(routing.tile_of_block(block_key));
           if (s != detail::FlatKeyMap::kEmpty && slot_group[s] == group_id) slot_tile[s]->hits->merge(block_key, cells);
         });
+      tiles_done += count;
+      report.report(tiles_done);
     });
     skipped += skip;
+    report.finish();
+    if (deferred) std::rethrow_exception(deferred);
   }
 
   void set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) {
@@ -360,8 +370,9 @@ struct OutofcoreTileMapper::Impl {
   // One commit (tile_store.h): every tile whose newest state is not in its committed file (dirty
   // resident tiles from RAM, staged tiles from the staging file) and the parameters. All or
   // nothing: on failure the map stays as the last commit left it, and every tile keeps its newest
-  // state (dirty in RAM, or staged) for a later flush.
-  void flush() {
+  // state (dirty in RAM, or staged) for a later flush. Reports kWritingTiles (an exception of the
+  // callback is rethrown after the commit).
+  void flush(const ProgressCallback* progress = nullptr) {
     if (dir.read_only()) return;  // nothing can be dirty
     std::vector<VoxelKey> keys;
     for (const auto& [k, image] : store.images())
@@ -373,8 +384,12 @@ struct OutofcoreTileMapper::Impl {
     std::sort(keys.begin(), keys.end());
     std::vector<detail::Tile*> written;
     std::unique_ptr<detail::DenseBlock> check_block;
+    std::exception_ptr deferred;
+    detail::StageProgress report(progress, ProgressStage::kWritingTiles, keys.size(), &deferred);
     try {
-      for (const VoxelKey& k : keys) {
+      for (std::size_t i = 0; i < keys.size(); ++i) {
+        const VoxelKey& k = keys[i];
+        report.report(i);
         detail::Tile* t = cache.find(k);
         if (t != nullptr && t->dirty) {
           const std::uint64_t known = cache.encode(*t, io_buffer);
@@ -391,6 +406,8 @@ struct OutofcoreTileMapper::Impl {
       throw;
     }
     for (detail::Tile* t : written) t->dirty = false;
+    report.finish();
+    if (deferred) std::rethrow_exception(deferred);
   }
 
   // Back to the last commit: resident tiles, staged images and parameters as it left them.

@@ -63,7 +63,7 @@ void OutofcoreTileMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
   m.check_writable("insert_scan()");
-  m.insert_scan(origin, points, intensities, max_range, get_num_threads());
+  m.insert_scan(origin, points, intensities, max_range, get_num_threads(), &get_progress_callback());
 }
 
 void OutofcoreTileMapper::set_params(const IwloParams& params) {
@@ -232,7 +232,7 @@ void OutofcoreTileMapper::clear() {
 void OutofcoreTileMapper::flush() {
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
-  m.flush();
+  m.flush(&get_progress_callback());
 }
 
 void OutofcoreTileMapper::preload_region(const Eigen::Vector3d& min_bound, const Eigen::Vector3d& max_bound) {
