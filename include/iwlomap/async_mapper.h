@@ -35,6 +35,9 @@ class AsyncMapper {
   /// is full under QueueFullPolicy::kBlock.
   void integrate(const Eigen::Vector3d& origin, Eigen::MatrixXd points, Eigen::VectorXd intensities,
                  double max_range = -1.0);
+  /// The same for a scan without intensities: every point is a return at the map's intensity_max
+  /// as the scan is integrated (as a cloud without an intensity field maps in the tool).
+  void integrate(const Eigen::Vector3d& origin, Eigen::MatrixXd points, double max_range = -1.0);
 
   /// Waits until every queued scan is integrated; rethrows the first error since the last sync().
   void sync();
@@ -58,6 +61,7 @@ class AsyncMapper {
     Eigen::MatrixXd points;
     Eigen::VectorXd intensities;
     double max_range;
+    bool all_returns = false;  // no intensities: each point at the map's intensity_max
   };
   struct Done {};
 

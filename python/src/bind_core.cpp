@@ -128,10 +128,10 @@ void bind_params(py::module_& m) {
   iwlo.def("step", &iwlo::step, py::arg("log_odds"), py::arg("count"), py::arg("intensity"), py::arg("occupied_flag"),
            py::arg("weight"), py::arg("params"), "The voxel's next log-odds after one observation (count includes it).");
 
-  py::enum_<SensorPreset>(m, "SensorPreset", "IWLO parameters suited to a kind of sensor.")
+  readable_enum_name(py::enum_<SensorPreset>(m, "SensorPreset", "IWLO parameters suited to a kind of sensor.")
       .value("kSonar", SensorPreset::kSonar)
       .value("kLidar", SensorPreset::kLidar)
-      .value("kDepthCamera", SensorPreset::kDepthCamera);
+      .value("kDepthCamera", SensorPreset::kDepthCamera));
   m.def("sensor_preset_params", &sensor_preset_params, py::arg("preset"));
   m.def("sensor_preset_name", &sensor_preset_name, py::arg("preset"));
   m.def("parse_sensor_preset", &parse_sensor_preset, py::arg("name"),
@@ -144,7 +144,7 @@ void bind_params(py::module_& m) {
       .def("advice", &IntensityCheck::advice);
   m.def(
       "check_intensities",
-      [](const py::handle& intensities, const IwloParams& params) {
+      [](const ArrayLike& intensities, const IwloParams& params) {
         return check_intensities(values_from(intensities, "intensities"), params);
       },
       py::arg("intensities"), py::arg("params"),
@@ -165,14 +165,14 @@ void bind_keys(py::module_& m) {
       });
   m.def(
       "world_to_key",
-      [](const py::handle& point, double resolution) { return world_to_key_checked(vector3_from(point, "point"), resolution); },
+      [](const ArrayLike& point, double resolution) { return world_to_key_checked(vector3_from(point, "point"), resolution); },
       py::arg("point"), py::arg("resolution"), "The key of the voxel containing a point (metres, map frame).");
   m.def(
       "key_to_center", [](const VoxelKey& k, double resolution) { return to_numpy(key_to_center(k, resolution)); },
       py::arg("key"), py::arg("resolution"), "The centre of a voxel in metres, map frame.");
   m.def(
       "cast_ray",
-      [](const py::handle& origin, const py::handle& end, double resolution) {
+      [](const ArrayLike& origin, const ArrayLike& end, double resolution) {
         const Eigen::Vector3d o = vector3_from(origin, "origin"), e = vector3_from(end, "end");
         if (!(resolution > 0.0)) throw py::value_error("resolution must be > 0, got " + std::to_string(resolution));
         if (!is_representable(o, resolution) || !is_representable(e, resolution))
@@ -203,7 +203,7 @@ void bind_keys(py::module_& m) {
            py::arg("min"), py::arg("max"))
       .def_static(
           "from_world",
-          [](const py::handle& lo, const py::handle& hi, double resolution) {
+          [](const ArrayLike& lo, const ArrayLike& hi, double resolution) {
             return VoxelBox::from_world(vector3_from(lo, "min_corner"), vector3_from(hi, "max_corner"), resolution);
           },
           py::arg("min_corner"), py::arg("max_corner"), py::arg("resolution"),
@@ -236,14 +236,14 @@ void bind_states(py::module_& m) {
       .def_readonly("visits", &HitStatistics::visits)
       .def_readonly("entropy", &HitStatistics::entropy, "nats");
   m.def("cell_entropy", &cell_entropy, py::arg("hits"), py::arg("visits"), "GMapping's cell entropy in nats.");
-  py::enum_<BackendFeature>(m, "BackendFeature")
+  readable_enum_name(py::enum_<BackendFeature>(m, "BackendFeature")
       .value("kWeights", BackendFeature::kWeights)
       .value("kScan", BackendFeature::kScan)
       .value("kQuery", BackendFeature::kQuery)
       .value("kParams", BackendFeature::kParams)
       .value("kSetLogOdds", BackendFeature::kSetLogOdds)
       .value("kHitStatistics", BackendFeature::kHitStatistics)
-      .value("kClone", BackendFeature::kClone);
+      .value("kClone", BackendFeature::kClone));
 }
 
 void bind_backend(py::module_& m) {
@@ -252,7 +252,7 @@ void bind_backend(py::module_& m) {
                                   "calls release the GIL while the library works, and one map takes one call at a time.")
       .def(
           "batch_update_iwlo",
-          [](Backend& map, const py::handle& points, const py::handle& intensities, const py::handle& is_occupied,
+          [](Backend& map, const ArrayLike& points, const ArrayLike& intensities, const ArrayLike& is_occupied,
              const py::object& weights) {
             const Eigen::MatrixXd p = points_from(points);
             const double missing = intensities.is_none() ? unlocked(map, [&] { return map.get_params().intensity_max; }) : 0.0;
@@ -268,7 +268,7 @@ void bind_backend(py::module_& m) {
           "optional weights (N,) in [0, 1]. Rows of one voxel apply in call order; NaN rows are skipped and counted.")
       .def(
           "insert_scan",
-          [](Backend& map, const py::handle& origin, const py::handle& points, const py::handle& intensities,
+          [](Backend& map, const ArrayLike& origin, const ArrayLike& points, const ArrayLike& intensities,
              double max_range) {
             const Eigen::Vector3d o = vector3_from(origin, "origin");
             const Eigen::MatrixXd p = points_from(points);
@@ -324,7 +324,7 @@ void bind_backend(py::module_& m) {
            "Makes everything so far durable (Disk); a no-op for RAM maps.")
       .def(
           "preload_region",
-          [](Backend& map, const py::handle& lo, const py::handle& hi) {
+          [](Backend& map, const ArrayLike& lo, const ArrayLike& hi) {
             const Eigen::Vector3d a = vector3_from(lo, "min_bound"), b = vector3_from(hi, "max_bound");
             unlocked(map, [&] { map.preload_region(a, b); });
           },
@@ -338,7 +338,7 @@ void bind_backend(py::module_& m) {
           py::arg("feature"))
       .def(
           "query",
-          [](Backend& map, const py::handle& point) -> py::object {
+          [](Backend& map, const ArrayLike& point) -> py::object {
             const py::array a = as_array(point, "point");
             if (a.ndim() != 2) {
               const Eigen::Vector3d p = vector3_from(point, "point");
@@ -428,7 +428,7 @@ void bind_backend(py::module_& m) {
       .def("get_params", [](Backend& map) { return unlocked(map, [&] { return map.get_params(); }); })
       .def(
           "set_log_odds",
-          [](Backend& map, const py::handle& points, const py::handle& log_odds) {
+          [](Backend& map, const ArrayLike& points, const ArrayLike& log_odds) {
             const Eigen::MatrixXd p = points_from(points);
             const Eigen::VectorXd l = values_from(log_odds, "log_odds", p.rows());
             unlocked(map, [&] { map.set_log_odds(p, l); });
@@ -440,7 +440,7 @@ void bind_backend(py::module_& m) {
       .def("get_hit_accumulation", [](Backend& map) { return unlocked(map, [&] { return map.get_hit_accumulation(); }); })
       .def(
           "hit_statistics",
-          [](Backend& map, const py::handle& point) {
+          [](Backend& map, const ArrayLike& point) {
             const Eigen::Vector3d p = vector3_from(point, "point");
             return unlocked(map, [&] { return map.hit_statistics(p); });
           },
@@ -487,7 +487,7 @@ void bind_backend(py::module_& m) {
       .def_readonly("tiles_kept", &DiskMapRepair::tiles_kept);
   py::class_<OutofcoreTileMapper, Backend, std::shared_ptr<OutofcoreTileMapper>>(
       m, "OutofcoreTileMapper", "The Disk backend: a map larger than RAM in crash-safe tiles of a directory.")
-      .def(py::init([](const py::handle& directory, double resolution, double tile_size, size_t cache_tiles) {
+      .def(py::init([](const PathLike& directory, double resolution, double tile_size, size_t cache_tiles) {
              const std::string dir = path_from(directory);
              py::gil_scoped_release release;
              return std::make_shared<OutofcoreTileMapper>(dir, resolution, tile_size, cache_tiles);
@@ -499,7 +499,7 @@ void bind_backend(py::module_& m) {
            "map.")
       .def_static(
           "open_read_only",
-          [](const py::handle& directory, size_t cache_tiles) {
+          [](const PathLike& directory, size_t cache_tiles) {
             const std::string dir = path_from(directory);
             py::gil_scoped_release release;
             return std::make_shared<OutofcoreTileMapper>(OutofcoreTileMapper::open_read_only(dir, cache_tiles));
@@ -508,14 +508,14 @@ void bind_backend(py::module_& m) {
           "Reads the map's last commit, writing nothing; a writer may go on committing beside it.")
       .def_static(
           "repair",
-          [](const py::handle& directory) {
+          [](const PathLike& directory) {
             const std::string dir = path_from(directory);
             py::gil_scoped_release release;
             return OutofcoreTileMapper::repair(dir);
           },
           py::arg("directory"), "Sets the damaged tiles of a map aside so that the rest can be used.")
       .def_static(
-          "read_map_info", [](const py::handle& directory) { return OutofcoreTileMapper::read_map_info(path_from(directory)); },
+          "read_map_info", [](const PathLike& directory) { return OutofcoreTileMapper::read_map_info(path_from(directory)); },
           py::arg("directory"))
       .def("is_read_only", &OutofcoreTileMapper::is_read_only)
       .def("get_directory", &OutofcoreTileMapper::get_directory)
@@ -527,7 +527,7 @@ void bind_backend(py::module_& m) {
       .def("get_peak_resident_tiles", [](OutofcoreTileMapper& map) { return unlocked(map, [&] { return map.get_peak_resident_tiles(); }); })
       .def(
           "copy_to",
-          [](OutofcoreTileMapper& map, const py::handle& directory) {
+          [](OutofcoreTileMapper& map, const PathLike& directory) {
             const std::string dir = path_from(directory);
             unlocked(map, [&] { map.copy_to(dir); });
           },
@@ -584,8 +584,8 @@ void bind_misc(py::module_& m) {
       .def("resolution", &VoxelColorMeans::resolution)
       .def(
           "add_scan",
-          [](VoxelColorMeans& c, const py::handle& origin, const py::handle& points, const py::handle& intensities,
-             const py::handle& colors, const IwloParams& params, double max_range) {
+          [](VoxelColorMeans& c, const ArrayLike& origin, const ArrayLike& points, const ArrayLike& intensities,
+             const ArrayLike& colors, const IwloParams& params, double max_range) {
             const Eigen::Vector3d o = vector3_from(origin, "origin");
             const Eigen::MatrixXd p = points_from(points);
             const Eigen::VectorXd i = values_from(intensities, "intensities", p.rows());
@@ -597,8 +597,8 @@ void bind_misc(py::module_& m) {
           py::arg("max_range") = -1.0, "The hits of one scan as insert_scan() counts them; colors (N, 3) uint8.")
       .def(
           "add_observations",
-          [](VoxelColorMeans& c, const py::handle& points, const py::handle& intensities, const py::handle& flags,
-             const py::handle& colors, const IwloParams& params) {
+          [](VoxelColorMeans& c, const ArrayLike& points, const ArrayLike& intensities, const ArrayLike& flags,
+             const ArrayLike& colors, const IwloParams& params) {
             const Eigen::MatrixXd p = points_from(points);
             c.add_observations(p, values_from(intensities, "intensities", p.rows()),
                                flags_from(flags, "is_occupied", p.rows()), colors_from(colors, "colors", p.rows()),
@@ -607,18 +607,18 @@ void bind_misc(py::module_& m) {
           py::arg("points"), py::arg("intensities"), py::arg("is_occupied"), py::arg("colors"), py::arg("params"))
       .def(
           "mean",
-          [](const VoxelColorMeans& c, const py::handle& point) -> std::optional<py::tuple> {
+          [](const VoxelColorMeans& c, const ArrayLike& point) -> std::optional<py::tuple> {
             const auto m = c.mean(vector3_from(point, "point"));
             if (!m) return std::nullopt;
             return py::make_tuple(m->r, m->g, m->b);
           },
           py::arg("point"), "(r, g, b) of the voxel containing point, or None.")
       .def(
-          "hits", [](const VoxelColorMeans& c, const py::handle& point) { return c.hits(vector3_from(point, "point")); },
+          "hits", [](const VoxelColorMeans& c, const ArrayLike& point) { return c.hits(vector3_from(point, "point")); },
           py::arg("point"))
       .def(
           "colors_at",
-          [](const VoxelColorMeans& c, const py::handle& positions) {
+          [](const VoxelColorMeans& c, const ArrayLike& positions) {
             return to_numpy(c.colors_at(rows_from(positions, "positions", 3, 4)));
           },
           py::arg("positions"), "(N, 3) uint8 mean colours of the voxels of rows (x, y, z[, p]); 0 without hits.")
@@ -650,7 +650,7 @@ void bind_misc(py::module_& m) {
   const SyntheticScanOptions d;
   m.def(
       "make_synthetic_scan",
-      [](int rings, int columns, double sensor_height, const py::handle& sensor_xy, double range_noise,
+      [](int rings, int columns, double sensor_height, const ArrayLike& sensor_xy, double range_noise,
          double intensity_noise, std::uint32_t seed) {
         SyntheticScanOptions o;
         o.rings = rings;

@@ -50,7 +50,7 @@ void bind_dim(py::module_& m, const char* grid_name, const char* stack_name) {
   using Grid = DiscreteGrid<D>;
   using Stack = PrecomputationStack<D>;
   py::class_<Grid>(m, grid_name, "A grid of 8-bit occupancy values (0 unknown, 1..255 probability 0.1..0.9).")
-      .def(py::init([](const py::handle& values, const GridFrame& frame) {
+      .def(py::init([](const ArrayLike& values, const GridFrame& frame) {
              const py::array a = as_array(values, "values");
              if (a.ndim() != D) throw py::value_error("values: expected " + std::to_string(D) + " dimensions, got " + shape_text(a));
              if (a.dtype().kind() != 'u' || a.itemsize() != 1)
@@ -69,10 +69,10 @@ void bind_dim(py::module_& m, const char* grid_name, const char* stack_name) {
       .def_property_readonly("frame", &Grid::frame)
       .def_property_readonly("values", [](const Grid& g) { return cells_to_numpy<D>(g.values(), g.size()); })
       .def(
-          "at", [](const Grid& g, const py::handle& cell) { return g.at(index_from<D>(cell, "cell")); },
+          "at", [](const Grid& g, const ArrayLike& cell) { return g.at(index_from<D>(cell, "cell")); },
           py::arg("cell"))
       .def(
-          "key_of", [](const Grid& g, const py::handle& cell) { return g.key_of(index_from<D>(cell, "cell")); },
+          "key_of", [](const Grid& g, const ArrayLike& cell) { return g.key_of(index_from<D>(cell, "cell")); },
           py::arg("cell"), "The map voxel key of a cell.");
 
   py::class_<Stack>(m, stack_name,
@@ -106,7 +106,7 @@ void bind_dim(py::module_& m, const char* grid_name, const char* stack_name) {
                              })
       .def(
           "max_in_box",
-          [](const Stack& s, const py::handle& lo, const py::handle& hi) {
+          [](const Stack& s, const ArrayLike& lo, const ArrayLike& hi) {
             return s.max_in_box(index_from<D>(lo, "lo"), index_from<D>(hi, "hi"));
           },
           py::arg("lo"), py::arg("hi"), "The maximum base cell value in the box [lo, hi] (cell indices, inclusive).");

@@ -17,14 +17,14 @@ void bind_octomap(py::module_& m) {
            py::arg("prob_miss") = 0.3, py::arg("prob_thres_min") = 0.12, py::arg("prob_thres_max") = 0.97)
       .def(
           "update_point",
-          [](OctreeMapper& map, const py::handle& point, bool occupied) {
+          [](OctreeMapper& map, const ArrayLike& point, bool occupied) {
             const Eigen::Vector3d p = vector3_from(point, "point");
             unlocked(map, [&] { map.update_point(p, occupied); });
           },
           py::arg("point"), py::arg("occupied"), "One observation in OctoMap's own hit/miss model.")
       .def(
           "batch_update",
-          [](OctreeMapper& map, const py::handle& points, const py::handle& flags) {
+          [](OctreeMapper& map, const ArrayLike& points, const ArrayLike& flags) {
             const Eigen::MatrixXd p = points_from(points);
             const std::vector<bool> f = flags_from(flags, "occupied_flags", p.rows());
             unlocked(map, [&] { map.batch_update(p, f); });
@@ -32,7 +32,7 @@ void bind_octomap(py::module_& m) {
           py::arg("points"), py::arg("occupied_flags"))
       .def(
           "batch_update_with_log_odds",
-          [](OctreeMapper& map, const py::handle& points, const py::handle& log_odds) {
+          [](OctreeMapper& map, const ArrayLike& points, const ArrayLike& log_odds) {
             const Eigen::MatrixXd p = points_from(points);
             const Eigen::VectorXd l = values_from(log_odds, "log_odds", p.rows());
             unlocked(map, [&] { map.batch_update_with_log_odds(p, l); });
@@ -40,7 +40,7 @@ void bind_octomap(py::module_& m) {
           py::arg("points"), py::arg("log_odds"))
       .def(
           "insert_ray",
-          [](OctreeMapper& map, const py::handle& origin, const py::handle& end, double max_range) {
+          [](OctreeMapper& map, const ArrayLike& origin, const ArrayLike& end, double max_range) {
             const Eigen::Vector3d o = vector3_from(origin, "origin"), e = vector3_from(end, "endpoint");
             unlocked(map, [&] { map.insert_ray(o, e, max_range); });
           },
@@ -60,7 +60,7 @@ void bind_octomap(py::module_& m) {
       .def("prune_tree", [](OctreeMapper& map) { return unlocked(map, [&] { return map.prune_tree(); }); })
       .def(
           "save_to_file",
-          [](OctreeMapper& map, const py::handle& path) {
+          [](OctreeMapper& map, const PathLike& path) {
             const std::string file = path_from(path);
             unlocked(map, [&] { with_file_errors(file, [&] { (void)map.save_to_file(file); }); });
             return true;
@@ -68,7 +68,7 @@ void bind_octomap(py::module_& m) {
           py::arg("path"), "Writes the map as .bt (occupancy) or .ot (full log-odds); True (failures raise).")
       .def(
           "load_from_file",
-          [](OctreeMapper& map, const py::handle& path) {
+          [](OctreeMapper& map, const PathLike& path) {
             const std::string file = path_from(path);
             unlocked(map, [&] { with_file_errors(file, [&] { (void)map.load_from_file(file); }); });
             return true;
@@ -76,7 +76,7 @@ void bind_octomap(py::module_& m) {
           py::arg("path"), "Replaces the map by a .bt/.ot file at its resolution; True (failures raise).");
   m.def(
       "export_octomap",
-      [](IMapperBackend& map, const py::handle& path, std::optional<double> occupied_threshold,
+      [](IMapperBackend& map, const PathLike& path, std::optional<double> occupied_threshold,
          const py::object& progress) {
         const std::string file = path_from(path);
         const ProgressCallback cb = python_progress(progress, map);
@@ -92,7 +92,7 @@ void bind_octomap(py::module_& m) {
       "the export and leaves no file.");
   m.def(
       "import_octomap",
-      [](const py::handle& path, IMapperBackend* map) -> py::object {
+      [](const PathLike& path, IMapperBackend* map) -> py::object {
         const std::string file = path_from(path);
         if (map != nullptr) {
           unlocked(*map, [&] { with_file_errors(file, [&] { import_octomap(file, *map); }); });

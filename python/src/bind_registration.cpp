@@ -44,7 +44,7 @@ void bind_registration(py::module_& m) {
                                        "Exact branch and bound over the max grids (x, y, z in voxels, yaw).")
       .def_static(
           "for_scan",
-          [](IMapperBackend& map, const py::handle& scan, const py::handle& initial, const SearchWindow3D& window,
+          [](IMapperBackend& map, const ArrayLike& scan, const ArrayLike& initial, const SearchWindow3D& window,
              int num_levels, int dilation) {
             const Eigen::MatrixXd s = points_from(scan, "scan_sensor");
             const Eigen::Isometry3d p = pose_from(initial, "initial");
@@ -54,7 +54,7 @@ void bind_registration(py::module_& m) {
           py::arg("num_levels") = 7, py::arg("dilation") = 1)
       .def(
           "match",
-          [](const CorrelativeScanMatcher3D& c, const py::handle& scan, const py::handle& initial,
+          [](const CorrelativeScanMatcher3D& c, const ArrayLike& scan, const ArrayLike& initial,
              const SearchWindow3D& window, double min_score) {
             const Eigen::MatrixXd s = points_from(scan, "scan_sensor");
             const Eigen::Isometry3d p = pose_from(initial, "initial");
@@ -64,7 +64,7 @@ void bind_registration(py::module_& m) {
           py::arg("scan_sensor"), py::arg("initial"), py::arg("window") = SearchWindow3D{}, py::arg("min_score") = 0.0)
       .def(
           "match_exhaustive",
-          [](const CorrelativeScanMatcher3D& c, const py::handle& scan, const py::handle& initial,
+          [](const CorrelativeScanMatcher3D& c, const ArrayLike& scan, const ArrayLike& initial,
              const SearchWindow3D& window, double min_score) {
             const Eigen::MatrixXd s = points_from(scan, "scan_sensor");
             const Eigen::Isometry3d p = pose_from(initial, "initial");
@@ -151,7 +151,7 @@ void bind_registration(py::module_& m) {
            py::arg("map"), py::arg("options") = r::ScanMatcherOptions{}, py::keep_alive<1, 2>())
       .def(
           "match",
-          [](const r::ScanMatcher& s, const py::handle& scan, const py::handle& initial) {
+          [](const r::ScanMatcher& s, const ArrayLike& scan, const ArrayLike& initial) {
             const Eigen::MatrixXd p = points_from(scan, "scan_sensor");
             const Eigen::Isometry3d t = pose_from(initial, "initial");
             py::gil_scoped_release release;
@@ -178,14 +178,21 @@ void bind_registration(py::module_& m) {
            py::arg("max_range") = -1.0, py::arg("queue_capacity") = 4)
       .def(
           "integrate",
-          [](r::RegisteredMapper& rm, const py::handle& pose, const py::handle& points, const py::handle& intensities) {
+          [](r::RegisteredMapper& rm, const ArrayLike& pose, const ArrayLike& points, const ArrayLike& intensities) {
             const Eigen::Isometry3d t = pose_from(pose, "pose");
             Eigen::MatrixXd p = points_from(points, "points_sensor");
+            if (intensities.is_none()) {
+              py::gil_scoped_release release;
+              rm.integrate(t, std::move(p));
+              return;
+            }
             Eigen::VectorXd i = values_from(intensities, "intensities", p.rows());
             py::gil_scoped_release release;
             rm.integrate(t, std::move(p), std::move(i));
           },
-          py::arg("pose"), py::arg("points_sensor"), py::arg("intensities"))
+          py::arg("pose"), py::arg("points_sensor"), py::arg("intensities") = py::none(),
+          "Queues a scan (points (N, 3) in the sensor frame; intensities (N,) or None: every point a return at the "
+          "map's intensity_max).")
       .def("sync", &r::RegisteredMapper::sync, py::call_guard<py::gil_scoped_release>())
       .def("correction", [](r::RegisteredMapper& rm) {
         Eigen::Isometry3d c;
@@ -235,7 +242,7 @@ void bind_registration(py::module_& m) {
            py::arg("options") = r::RegisteredSonarMapperOptions{}, py::arg("queue_capacity") = 2)
       .def(
           "integrate",
-          [](r::RegisteredSonarMapper& rm, const py::handle& nav_pose, const py::handle& image,
+          [](r::RegisteredSonarMapper& rm, const ArrayLike& nav_pose, const ArrayLike& image,
              const SonarGeometry& geometry) {
             const Eigen::Isometry3d t = pose_from(nav_pose, "nav_pose");
             const py::array a = as_array(image, "image");

@@ -82,7 +82,7 @@ void bind_slam(py::module_& m) {
           "Sensor poses (4, 4) every step metres once around the loop (the next would be the first).")
       .def(
           "scan",
-          [](const SyntheticWorld& w, const py::handle& pose, int rings, int columns, double max_range, double range_noise,
+          [](const SyntheticWorld& w, const ArrayLike& pose, int rings, int columns, double max_range, double range_noise,
              std::uint32_t seed) {
             LidarOptions l;
             l.rings = rings;
@@ -104,7 +104,7 @@ void bind_slam(py::module_& m) {
 
   m.def(
       "write_trajectory",
-      [](const py::handle& path, const py::handle& poses, const std::vector<double>& stamps, const std::string& format) {
+      [](const PathLike& path, const ArrayLike& poses, const std::vector<double>& stamps, const std::string& format) {
         const std::string p = path_from(path);
         const std::vector<Eigen::Isometry3d> list = poses_from(poses);
         with_file_errors(p, [&] { write_trajectory(p, list, stamps, format_of(p, format)); });
@@ -114,7 +114,7 @@ void bind_slam(py::module_& m) {
       "format '' takes KITTI for a name ending in .kitti, else TUM. stamps: seconds (default 0, 1, ...).");
   m.def(
       "read_trajectory",
-      [](const py::handle& path, const std::string& format) {
+      [](const PathLike& path, const std::string& format) {
         const std::string p = path_from(path);
         std::vector<double> stamps;
         const std::vector<Eigen::Isometry3d> poses =
@@ -126,9 +126,9 @@ void bind_slam(py::module_& m) {
 
 #ifdef IWLOMAP_PYTHON_SLAM
   namespace s = iwlomap::slam;
-  py::enum_<s::RefusedScanPolicy>(m, "RefusedScanPolicy")
+  readable_enum_name(py::enum_<s::RefusedScanPolicy>(m, "RefusedScanPolicy")
       .value("kIntegrateAtPrior", s::RefusedScanPolicy::kIntegrateAtPrior)
-      .value("kHoldBack", s::RefusedScanPolicy::kHoldBack);
+      .value("kHoldBack", s::RefusedScanPolicy::kHoldBack));
   py::class_<s::PoseGraphMapperOptions>(m, "PoseGraphMapperOptions",
                                         "Submaps, loop closure and the pose graph (metres, radians).")
       .def(py::init<>())
@@ -183,7 +183,7 @@ void bind_slam(py::module_& m) {
            py::arg("mode") = ExecutionMode::kSequential, py::arg("options") = s::PoseGraphMapperOptions{})
       .def(
           "add_scan",
-          [](s::PoseGraphMapper& g, const py::handle& pose, const py::handle& points, const py::object& intensities) {
+          [](s::PoseGraphMapper& g, const ArrayLike& pose, const ArrayLike& points, const py::object& intensities) {
             const Eigen::Isometry3d t = pose_from(pose, "navigation_pose");
             Eigen::MatrixXd p = points_from(points, "points_sensor");
             Eigen::VectorXd i = intensities.is_none() ? Eigen::VectorXd::Constant(p.rows(), g.options().params.intensity_max)
@@ -196,8 +196,8 @@ void bind_slam(py::module_& m) {
           "return at intensity_max); navigation_pose (4, 4) sensor to world.")
       .def(
           "add_loop_closure",
-          [](s::PoseGraphMapper& g, std::size_t scan, std::size_t submap, const py::handle& relative,
-             const py::handle& information) {
+          [](s::PoseGraphMapper& g, std::size_t scan, std::size_t submap, const ArrayLike& relative,
+             const ArrayLike& information) {
             const Eigen::Isometry3d t = pose_from(relative, "relative");
             return g.add_loop_closure(scan, submap, t, information_from(information));
           },
@@ -269,7 +269,7 @@ void bind_slam(py::module_& m) {
            py::arg("map"), py::arg("projector"), py::arg("options") = s::SonarPoseGraphMapperOptions{})
       .def(
           "integrate",
-          [](s::SonarPoseGraphMapper& g, const py::handle& nav_pose, const py::handle& image,
+          [](s::SonarPoseGraphMapper& g, const ArrayLike& nav_pose, const ArrayLike& image,
              const SonarGeometry& geometry) {
             const Eigen::Isometry3d t = pose_from(nav_pose, "nav_pose");
             const py::array a = as_array(image, "image");

@@ -33,7 +33,7 @@ py::object observations_to_python(const SonarObservations& o) {
 
 void bind_sonar(py::module_& m) {
   py::class_<SonarGeometry>(m, "SonarGeometry", "Where a sonar image's pixels lie (radians, metres).")
-      .def(py::init([](const py::handle& bearings, double range_resolution, double min_range, double max_range,
+      .def(py::init([](const ArrayLike& bearings, double range_resolution, double min_range, double max_range,
                        double vertical_aperture) {
              SonarGeometry g;
              const Eigen::VectorXd b = values_from(bearings, "bearings");
@@ -57,16 +57,16 @@ void bind_sonar(py::module_& m) {
       .def_readwrite("max_range", &SonarGeometry::max_range)
       .def_readwrite("vertical_aperture", &SonarGeometry::vertical_aperture);
 
-  py::enum_<SonarNoReturn>(m, "SonarNoReturn")
+  readable_enum_name(py::enum_<SonarNoReturn>(m, "SonarNoReturn")
       .value("kNothing", SonarNoReturn::kNothing)
-      .value("kFreeToMaxRange", SonarNoReturn::kFreeToMaxRange);
-  py::enum_<SonarDetector>(m, "SonarDetector")
+      .value("kFreeToMaxRange", SonarNoReturn::kFreeToMaxRange));
+  readable_enum_name(py::enum_<SonarDetector>(m, "SonarDetector")
       .value("kThreshold", SonarDetector::kThreshold)
       .value("kCellAveragingCfar", SonarDetector::kCellAveragingCfar)
-      .value("kOrderedStatisticCfar", SonarDetector::kOrderedStatisticCfar);
-  py::enum_<SonarCfarWindow>(m, "SonarCfarWindow")
+      .value("kOrderedStatisticCfar", SonarDetector::kOrderedStatisticCfar));
+  readable_enum_name(py::enum_<SonarCfarWindow>(m, "SonarCfarWindow")
       .value("kBothSides", SonarCfarWindow::kBothSides)
-      .value("kNearSide", SonarCfarWindow::kNearSide);
+      .value("kNearSide", SonarCfarWindow::kNearSide));
   const SonarCfarParams c;
   py::class_<SonarCfarParams>(m, "SonarCfarParams", "CFAR window and false-alarm rate (bins, probability).")
       .def(py::init([](int guard_cells, int training_cells, SonarCfarWindow window, double false_alarm_rate,
@@ -89,7 +89,7 @@ void bind_sonar(py::module_& m) {
       .def(py::init<SonarDetector, const SonarCfarParams&>(), py::arg("detector"), py::arg("params") = SonarCfarParams{})
       .def(
           "detect",
-          [](const SonarCfar& cfar, const py::handle& intensities) {
+          [](const SonarCfar& cfar, const ArrayLike& intensities) {
             const Eigen::VectorXd v = values_from(intensities, "intensities");
             const std::vector<bool> d = cfar.detect(v);
             return to_numpy(d);
@@ -160,8 +160,8 @@ void bind_sonar(py::module_& m) {
       .def("params", &SonarImageProjector::params)
       .def(
           "project",
-          [](const SonarImageProjector& p, const py::handle& image, const SonarGeometry& geometry,
-             const py::handle& pose) {
+          [](const SonarImageProjector& p, const ArrayLike& image, const SonarGeometry& geometry,
+             const ArrayLike& pose) {
             const py::array a = as_array(image, "image");
             const SonarImageView view = image_view_of(a);
             const Eigen::Isometry3d T = pose_from(pose, "sonar_pose");
@@ -177,8 +177,8 @@ void bind_sonar(py::module_& m) {
           "namespace with points (N, 3), intensities, is_occupied, weights and counts.")
       .def(
           "integrate",
-          [](const SonarImageProjector& p, IMapperBackend& map, const py::handle& image, const SonarGeometry& geometry,
-             const py::handle& pose) {
+          [](const SonarImageProjector& p, IMapperBackend& map, const ArrayLike& image, const SonarGeometry& geometry,
+             const ArrayLike& pose) {
             const py::array a = as_array(image, "image");
             const SonarImageView view = image_view_of(a);
             const Eigen::Isometry3d T = pose_from(pose, "sonar_pose");
@@ -218,7 +218,7 @@ void bind_sonar(py::module_& m) {
       .def("geometry", &OculusPing::geometry, py::arg("vertical_aperture"), py::arg("min_range") = 0.0);
   m.def(
       "read_oculus_pings",
-      [](const py::handle& path) {
+      [](const PathLike& path) {
         const std::string file = path_from(path);
         py::gil_scoped_release release;
         return with_file_errors(file, [&] { return read_oculus_pings(file); });

@@ -22,20 +22,20 @@ viewer::Rgb rgb_from(const py::handle& obj, const char* name) {
 }  // namespace
 
 void bind_viewer(py::module_& m) {
-  py::module_ v = m.def_submodule("viewer", "Off-screen snapshots of voxel maps (needs an X display, e.g. xvfb-run).");
-  py::enum_<viewer::CameraPreset>(v, "CameraPreset")
+  py::module_ v = m.def_submodule("viewer", "Off-screen snapshots of voxel maps (through $DISPLAY, or a private Xvfb started when there is none).");
+  readable_enum_name(py::enum_<viewer::CameraPreset>(v, "CameraPreset")
       .value("kIso", viewer::CameraPreset::kIso)
       .value("kTop", viewer::CameraPreset::kTop)
       .value("kFront", viewer::CameraPreset::kFront)
-      .value("kSide", viewer::CameraPreset::kSide);
-  py::enum_<viewer::ColorBy>(v, "ColorBy")
+      .value("kSide", viewer::CameraPreset::kSide));
+  readable_enum_name(py::enum_<viewer::ColorBy>(v, "ColorBy")
       .value("kProbability", viewer::ColorBy::kProbability)
       .value("kHeight", viewer::ColorBy::kHeight)
       .value("kFixed", viewer::ColorBy::kFixed)
-      .value("kRgb", viewer::ColorBy::kRgb);
-  py::enum_<viewer::VoxelShape>(v, "VoxelShape")
+      .value("kRgb", viewer::ColorBy::kRgb));
+  readable_enum_name(py::enum_<viewer::VoxelShape>(v, "VoxelShape")
       .value("kCubes", viewer::VoxelShape::kCubes)
-      .value("kPoints", viewer::VoxelShape::kPoints);
+      .value("kPoints", viewer::VoxelShape::kPoints));
   py::register_exception<viewer::DisplayError>(v, "DisplayError", PyExc_RuntimeError);
 
   py::class_<viewer::SnapshotOptions>(v, "SnapshotOptions", "How a snapshot is drawn (see the C++ SnapshotOptions).")
@@ -73,7 +73,7 @@ void bind_viewer(py::module_& m) {
   };
   v.def(
       "render",
-      [to_image](const py::handle& voxels, double resolution, const viewer::SnapshotOptions& options) {
+      [to_image](const ArrayLike& voxels, double resolution, const viewer::SnapshotOptions& options) {
         const Eigen::MatrixXd rows = rows_from(voxels, "voxels", 4, 4);
         viewer::RgbImage img;
         {
@@ -95,7 +95,7 @@ void bind_viewer(py::module_& m) {
       "Draws the occupied voxels of map (p > min_probability; negative: the map's threshold).");
   v.def(
       "write_png",
-      [](const py::handle& image, const py::handle& path) {
+      [](const ArrayLike& image, const PathLike& path) {
         const py::array a = as_array(image, "image");
         if (a.ndim() != 3 || a.shape(2) != 3 || a.dtype().kind() != 'u' || a.itemsize() != 1)
           throw py::value_error("image: expected an (H, W, 3) uint8 array, got " + shape_text(a));

@@ -16,6 +16,32 @@
 
 namespace iwlomap::python {
 
+/// Argument types whose only job is the name help() shows for them: any object is accepted and
+/// converted by the function itself (array_from(), path_from()), as with py::handle.
+class ArrayLike : public pybind11::object {
+ public:
+  PYBIND11_OBJECT_DEFAULT(ArrayLike, object, [](PyObject*) { return 1; })
+};
+class PathLike : public pybind11::object {
+ public:
+  PYBIND11_OBJECT_DEFAULT(PathLike, object, [](PyObject*) { return 1; })
+};
+
+}  // namespace iwlomap::python
+
+namespace pybind11::detail {
+template <>
+struct handle_type_name<iwlomap::python::ArrayLike> {
+  static constexpr auto name = const_name("numpy.typing.ArrayLike");
+};
+template <>
+struct handle_type_name<iwlomap::python::PathLike> {
+  static constexpr auto name = const_name("str | os.PathLike");
+};
+}  // namespace pybind11::detail
+
+namespace iwlomap::python {
+
 /// A file that could not be read or written: raised as OSError with the path as filename.
 struct FileError : std::runtime_error {
   FileError(const std::string& message, std::string file) : std::runtime_error(message), path(std::move(file)) {}
@@ -72,6 +98,32 @@ auto unlocked(const IMapperBackend& map, F&& f) -> decltype(f()) {
 /// with the GIL held; a call from it into \p map raises RuntimeError, as from a visitor. None
 /// gives an empty callback.
 ProgressCallback python_progress(const pybind11::object& fn, const IMapperBackend& map);
+
+/// Replaces the `name` property and `__str__` pybind11 gives every enum (whose help() signatures
+/// read "name(self: handle)") by ones typed with the enum: help() shows "name(self: iwlomap.X)".
+template <class E>
+void readable_enum_name(pybind11::enum_<E>& e) {
+  namespace py = pybind11;
+  const py::handle property(reinterpret_cast<PyObject*>(&PyProperty_Type));
+  e.attr("name") = property(py::cpp_function(
+                                    [](E value) -> py::str {
+                                      const py::object self = py::cast(value);
+                                      const py::dict entries = py::type::handle_of(self).attr("__entries");
+                                      for (const auto& kv : entries)
+                                        if (self.equal(py::reinterpret_borrow<py::tuple>(kv.second)[0]))
+                                          return py::str(kv.first);
+                                      return py::str("???");
+                                    },
+                                    py::name("name"), py::is_method(e)),
+                                py::none(), py::none(), "");
+  // pybind11's __str__ ("Type.member") has the same untyped signature.
+  e.attr("__str__") = py::cpp_function(
+      [](E value) -> py::str {
+        const py::object self = py::cast(value);
+        return py::str("{}.{}").format(py::type::handle_of(self).attr("__name__"), self.attr("name"));
+      },
+      py::name("__str__"), py::is_method(e));
+}
 
 /// A path argument: str or os.PathLike.
 std::string path_from(const pybind11::handle& obj);

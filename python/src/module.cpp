@@ -72,6 +72,9 @@ void raise_os_error(const py::object& type, const std::string& message, const st
 
 PYBIND11_MODULE(_iwlomap, m) {
   m.doc() = "iwlomap: intensity-weighted log-odds occupancy maps (C++ library bindings)";
+  // Classes are created under the package's name, so help() and the signatures say
+  // iwlomap.ProbabilityUpdater (where users find them), not iwlomap._iwlomap.ProbabilityUpdater.
+  m.attr("__name__") = "iwlomap";
   m.attr("__version__") = iwlomap::version();
 
   // Exception classes, created once and kept alive by the module.
@@ -136,4 +139,5 @@ PYBIND11_MODULE(_iwlomap, m) {
 #else
   m.attr("HAS_VIEWER") = false;
 #endif
+  m.attr("__name__") = "iwlomap._iwlomap";
 }

@@ -141,3 +141,18 @@ def test_import_octomap_without_a_map_opens_the_file_at_its_resolution(tmp_path)
     assert iwlomap.import_octomap(tmp_path / "m.ot", into) is None
     np.testing.assert_array_equal(opened.get_occupied_voxels(0.5), into.get_occupied_voxels(0.5))
     assert opened.get_num_nodes() == m.get_num_nodes()
+
+
+def test_help_names_types_as_users_import_them():
+    """help() shows array and path arguments by their kind and classes as iwlomap.X, never
+    pybind11's 'handle' or the extension module's private name."""
+    import pydoc
+    import re
+
+    text = pydoc.render_doc(iwlomap, renderer=pydoc.plaintext)
+    assert not re.search(r"\bhandle\b", text)
+    assert "_iwlomap." not in text
+    assert "points: numpy.typing.ArrayLike" in text
+    assert iwlomap.ProbabilityUpdater.__module__ == "iwlomap"
+    assert str(iwlomap.SensorPreset.kLidar) == "SensorPreset.kLidar"
+    assert iwlomap.SensorPreset.kLidar.name == "kLidar"

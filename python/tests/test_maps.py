@@ -454,3 +454,26 @@ def test_disk_map_opened_from_its_directory_alone_takes_its_stored_parameters(tm
     assert opened.get_resolution() == 0.1 and opened.get_num_nodes() == 2
     fresh = iwlomap.OutofcoreTileMapper(tmp_path / "new")
     assert fresh.get_resolution() == 0.05
+
+
+def test_async_and_registered_mappers_take_scans_without_intensities():
+    """AsyncMapper.integrate and RegisteredMapper.integrate accept intensities=None: every point a
+    return at the map's intensity_max, the same map as with those intensities given."""
+    rng = np.random.default_rng(5)
+    pts = np.column_stack([rng.uniform(3, 4, 3000), rng.uniform(-1, 1, 3000), rng.uniform(-1, 1, 3000)])
+    maps = []
+    for intensities in (None, "given"):
+        m = iwlomap.ProbabilityUpdater(0.2)
+        a = iwlomap.AsyncMapper(m)
+        full = np.full(len(pts), m.get_params().intensity_max)
+        a.integrate(np.zeros(3), pts, None if intensities is None else full)
+        a.sync()
+        maps.append(m.get_occupied_voxels(0.5))
+    assert maps[0].shape[0] > 0
+    np.testing.assert_array_equal(maps[0], maps[1])
+    if hasattr(iwlomap, "RegisteredMapper"):
+        m = iwlomap.ProbabilityUpdater(0.2)
+        r = iwlomap.RegisteredMapper(m)
+        r.integrate(np.eye(4), pts)
+        r.sync()
+        np.testing.assert_array_equal(m.get_occupied_voxels(0.5), maps[0])

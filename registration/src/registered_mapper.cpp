@@ -44,12 +44,24 @@ RegisteredScan RegisteredMapper::process(Scan&& scan, State& state, const StopTo
   // The scan in the map frame, rays from the corrected sensor position.
   const Eigen::MatrixXd world = (scan.points * out.integrated_pose.linear().transpose()).rowwise() +
                                 out.integrated_pose.translation().transpose();
+  if (scan.all_returns)
+    scan.intensities = Eigen::VectorXd::Constant(scan.points.rows(), state.map->get_params().intensity_max);
   state.map->insert_scan(out.integrated_pose.translation(), world, scan.intensities, state.options.max_range);
   return out;
 }
 
+void RegisteredMapper::integrate(const Eigen::Isometry3d& pose, Eigen::MatrixXd points_sensor) {
+  const Eigen::Index n = points_sensor.rows();
+  submit(pose, std::move(points_sensor), Eigen::VectorXd::Zero(n), true);
+}
+
 void RegisteredMapper::integrate(const Eigen::Isometry3d& pose, Eigen::MatrixXd points_sensor,
                                  Eigen::VectorXd intensities) {
+  submit(pose, std::move(points_sensor), std::move(intensities), false);
+}
+
+void RegisteredMapper::submit(const Eigen::Isometry3d& pose, Eigen::MatrixXd points_sensor, Eigen::VectorXd intensities,
+                              bool all_returns) {
   if (!pose.matrix().allFinite()) throw std::invalid_argument("iwlomap: RegisteredMapper: the pose is not finite");
   if (points_sensor.cols() != 3 && points_sensor.rows() > 0)
     throw std::invalid_argument("iwlomap: RegisteredMapper: the scan has " + std::to_string(points_sensor.cols()) +
@@ -57,7 +69,7 @@ void RegisteredMapper::integrate(const Eigen::Isometry3d& pose, Eigen::MatrixXd 
   if (intensities.size() != points_sensor.rows())
     throw std::invalid_argument("iwlomap: RegisteredMapper: " + std::to_string(intensities.size()) +
                                 " intensities for " + std::to_string(points_sensor.rows()) + " points");
-  job_.submit(Scan{pose, std::move(points_sensor), std::move(intensities)});
+  job_.submit(Scan{pose, std::move(points_sensor), std::move(intensities), all_returns});
 }
 
 std::vector<RegisteredScan> RegisteredMapper::sync() { return job_.wait(); }

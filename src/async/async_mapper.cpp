@@ -20,6 +20,7 @@ AsyncMapper::AsyncMapper(std::shared_ptr<IMapperBackend> backend, ExecutionMode 
           mode,
           [](Scan&& s, std::shared_ptr<IMapperBackend>& map, const StopToken& stop) {
             stop.throw_if_stopped();  // terminate(): a scan not yet begun stays out of the map
+            if (s.all_returns) s.intensities = Eigen::VectorXd::Constant(s.points.rows(), map->get_params().intensity_max);
             map->insert_scan(s.origin, s.points, s.intensities, s.max_range);
             return Done{};
           },
@@ -28,6 +29,10 @@ AsyncMapper::AsyncMapper(std::shared_ptr<IMapperBackend> backend, ExecutionMode 
 void AsyncMapper::integrate(const Eigen::Vector3d& origin, Eigen::MatrixXd points, Eigen::VectorXd intensities,
                             double max_range) {
   job_.submit(Scan{origin, std::move(points), std::move(intensities), max_range});
+}
+
+void AsyncMapper::integrate(const Eigen::Vector3d& origin, Eigen::MatrixXd points, double max_range) {
+  job_.submit(Scan{origin, std::move(points), Eigen::VectorXd(), max_range, true});
 }
 
 void AsyncMapper::sync() { (void)job_.wait(); }

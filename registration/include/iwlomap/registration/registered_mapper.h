@@ -46,6 +46,9 @@ class RegisteredMapper {
   /// the navigation's sensor pose (sensor to map). Sequential mode runs it before returning;
   /// parallel mode returns at once unless queue_capacity scans are waiting.
   void integrate(const Eigen::Isometry3d& pose, Eigen::MatrixXd points_sensor, Eigen::VectorXd intensities);
+  /// The same for a scan without intensities: every point is a return at the map's intensity_max
+  /// as the scan is integrated.
+  void integrate(const Eigen::Isometry3d& pose, Eigen::MatrixXd points_sensor);
 
   /// Waits for every queued scan; returns what happened to each since the last sync(), in order,
   /// and rethrows the first error of a scan.
@@ -58,10 +61,13 @@ class RegisteredMapper {
   [[nodiscard]] IMapperBackend& map();
 
  private:
+  void submit(const Eigen::Isometry3d& pose, Eigen::MatrixXd points_sensor, Eigen::VectorXd intensities,
+              bool all_returns);
   struct Scan {
     Eigen::Isometry3d pose;
     Eigen::MatrixXd points;
     Eigen::VectorXd intensities;
+    bool all_returns = false;  // no intensities: each point at the map's intensity_max
   };
   struct State {
     std::shared_ptr<IMapperBackend> map;
