@@ -9,7 +9,7 @@ PACKAGES=(build-essential cmake git pkg-config
   libgtest-dev libgmock-dev libbenchmark-dev
   octomap-tools pcl-tools xvfb xauth doxygen
   clang libclang-rt-14-dev ccache
-  libceres-dev
+  libceres-dev libyaml-cpp-dev
   python3-dev python3-pybind11 python3-numpy python3-pytest python3-pip python3-setuptools python3-wheel)
 
 missing=()

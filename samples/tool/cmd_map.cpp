@@ -6,6 +6,7 @@
 #include "commands.h"
 #include "map_options.h"
 #include "map_outputs.h"
+#include "config_file.h"
 #include "progress.h"
 
 #include <iwlomap/async_mapper.h>
@@ -81,6 +82,12 @@ output:
   --split-points            with --mpi: every file is one round of all ranks, each casting its
                             1/N of the points (for few large files; each rank reads the whole
                             file); the map is the same
+  --config FILE.yaml        read options from FILE: one 'option: value' line each, the options
+                            below without their dashes ('resolution: 0.1', 'sensor: lidar',
+                            'intensity-threshold: 35', flags as 'no-adaptive: true'); inputs,
+                            outputs and --tiles stay on the command line, which wins over the file
+  --print-config            print the effective configuration (the preset, every IWLO parameter,
+                            resolution, max-range, backend, threads) as a --config file, and exit
 )";
 
 }  // namespace
@@ -96,17 +103,29 @@ int run_map(const std::vector<std::string>& argv) {
   auto value_opts = map_value_options();
   value_opts.insert({"-o", "--output", "--octomap", "--snapshot", "--write-poses"});
   auto flag_opts = map_flag_options();
-  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async", "--mean-positions", "--no-colors", "--register", "--loop-closure", "--mpi", "--split-points"});
+  flag_opts.insert({"-h", "--help", "-q", "--quiet", "--async", "--mean-positions", "--no-colors", "--register",
+                    "--loop-closure", "--mpi", "--split-points", "--print-config"});
+  // What a --config file may set: the map's options, not inputs, outputs or other files.
+  std::set<std::string> configurable = map_value_options();
+  configurable.merge(map_flag_options());
+  configurable.insert({"--mean-positions", "--no-colors", "--register", "--loop-closure"});
 #ifdef IWLOMAP_HAVE_REGISTRATION
   value_opts.merge(registration_value_options());
   flag_opts.merge(registration_flag_options());
+  for (const std::string& o : registration_value_options()) configurable.insert(o);
+  for (const std::string& o : registration_flag_options()) configurable.insert(o);
 #endif
-  const Args args(argv, value_opts, flag_opts);
+  configurable.erase("--tiles");
+  const Args args = args_with_config(argv, value_opts, flag_opts, configurable);
   if (args.flag("-h") || args.flag("--help")) {
     std::cout << kHelp << map_outputs_help() << map_options_help(true, SensorPreset::kLidar) << "  -q, --quiet               no summary, no progress bar\n";
 #ifdef IWLOMAP_HAVE_REGISTRATION
     std::cout << registration_options_help();
 #endif
+    return 0;
+  }
+  if (args.flag("--print-config")) {
+    std::cout << config_yaml(map_setup_from(args, SensorPreset::kLidar, std::nullopt, /*open_map=*/false), "map");
     return 0;
   }
   const auto& inputs = args.positional();

@@ -304,6 +304,31 @@ check help_register 0 "$TOOL" register --help
 expect help_register_pose_line grep -q "pose x y z qw qx qy qz" "$WORK/help_register.out"
 check reg_map 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --sensor lidar --mean-positions -o "$WORK/reg_map.pcd"
 check reg_sensor_frame 0 pcl_transform_point_cloud "$WORK/scan.pcd" "$WORK/reg_sensor.pcd" -trans 0,0,-1.5
+# --config FILE.yaml and --print-config: the printed configuration reads back to itself, a file
+# maps as its options given on the command line do, the command line wins, bad files are refused.
+check print_config 0 "$TOOL" map --sensor sonar --resolution 0.2 --intensity-threshold 20 --print-config
+expect print_config_names_preset grep -qx "sensor: sonar" "$WORK/print_config.out"
+cp "$WORK/print_config.out" "$WORK/config.yaml"
+check print_config_roundtrip 0 "$TOOL" map --config "$WORK/config.yaml" --print-config
+expect print_config_same bash -c "diff '$WORK/print_config.out' '$WORK/print_config_roundtrip.out'"
+check map_from_config 0 "$TOOL" map "$WORK/scan.pcd" --config "$WORK/config.yaml" -o "$WORK/from_config.pcd"
+check map_from_options 0 "$TOOL" map "$WORK/scan.pcd" --sensor sonar --resolution 0.2 --intensity-threshold 20 -o "$WORK/from_options.pcd"
+expect map_config_same_output cmp "$WORK/from_config.pcd" "$WORK/from_options.pcd"
+check config_command_line_wins 0 "$TOOL" map --config "$WORK/config.yaml" --resolution 0.3 --print-config
+expect config_command_line_wins_says grep -qx "resolution: 0.3" "$WORK/config_command_line_wins.out"
+printf 'resolution: 0.2\nbogus: 1\n' > "$WORK/bad_key.yaml"
+check config_unknown_key 2 "$TOOL" map "$WORK/scan.pcd" --config "$WORK/bad_key.yaml"
+expect config_unknown_key_says grep -q "bad_key.yaml' line 2: 'bogus' is not an option" "$WORK/config_unknown_key.err"
+printf 'tiles: /tmp/x\n' > "$WORK/tiles_key.yaml"
+check config_no_paths 2 "$TOOL" map "$WORK/scan.pcd" --config "$WORK/tiles_key.yaml"
+printf 'no-adaptive: maybe\n' > "$WORK/bad_flag.yaml"
+check config_flag_not_bool 2 "$TOOL" map "$WORK/scan.pcd" --config "$WORK/bad_flag.yaml"
+printf 'resolution: [0.1, 0.2\n' > "$WORK/bad_yaml.yaml"
+check config_not_yaml 2 "$TOOL" map "$WORK/scan.pcd" --config "$WORK/bad_yaml.yaml"
+check config_missing 1 "$TOOL" map "$WORK/scan.pcd" --config "$WORK/no_such.yaml"
+printf 'resolution: -1\n' > "$WORK/bad_value.yaml"
+check config_bad_value 2 "$TOOL" map "$WORK/scan.pcd" --config "$WORK/bad_value.yaml"
+
 # The map cloud records its resolution and kind: no --resolution needed, a different one refused.
 expect reg_map_records_resolution grep -aqx "# iwlomap map resolution 0.2 positions means" "$WORK/reg_map.pcd"
 check register 0 "$TOOL" register --map "$WORK/reg_map.pcd" --scan "$WORK/reg_sensor.pcd" --initial "0.3 -0.2 1.6 0 0 4"
