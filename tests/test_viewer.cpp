@@ -51,6 +51,8 @@ SnapshotOptions flat_top_view(int width, int height) {
   o.color_bar = false;
   o.lighting = false;
   o.background = {0.0, 0.0, 0.0};
+  o.axes = false;
+  o.scale_bar = false;
   return o;
 }
 
@@ -305,6 +307,82 @@ TEST(SnapshotRenderer, ColourBarAndTitleGetTheirOwnBands) {
   for (int x = 0; x < band_x; ++x)
     if (near(img.pixel(x, 160), top_colour, 10)) map_right = x;
   EXPECT_NEAR(map_right, 298, 2);
+}
+
+// The marks: a sensor position outside the voxels is framed and drawn dark; the axes triad
+// draws its three colours in the lower-left corner; the scale bar is a round length drawn to the
+// map's scale; z_down turns a top view so +y points down the image.
+TEST(SnapshotRenderer, SensorPositionsAreFramedAndDrawn) {
+  SnapshotOptions o = flat_top_view(200, 200);
+  o.color_by = ColorBy::kFixed;
+  o.fixed_color = {0.0, 1.0, 0.0};
+  o.background = {1.0, 1.0, 1.0};
+  // Voxels in [-10, 0] x [-10, 10]; the sensor at (9.5, 0): framing both gives the box [-10, 10]^2.
+  o.sensor_positions = Eigen::MatrixXd(1, 3);
+  o.sensor_positions << 9.5, 0.0, 0.0;
+  const RgbImage img = SnapshotRenderer::render(rows({{-9.5, -9.5, 0, 1}, {-0.5, 9.5, 0, 1}}), 1.0, o);
+  const TopViewFrame f(-10, 10, -10, 10, 200, 200);
+  EXPECT_TRUE(near(f.at(img, -9.5, -9.5), {0, 255, 0})) << "the voxels keep their place in the larger frame";
+  const Pixel sensor = f.at(img, 9.5, 0.0);
+  EXPECT_LT(int(sensor[0]) + int(sensor[1]) + int(sensor[2]), 150) << "a dark marker at the sensor";
+}
+
+TEST(SnapshotRenderer, AxesTriadDrawsItsColoursInTheLowerLeftCorner) {
+  SnapshotOptions o = flat_top_view(300, 300);
+  o.camera = CameraPreset::kIso;
+  o.axes = true;
+  o.background = {1.0, 1.0, 1.0};
+  const RgbImage img = SnapshotRenderer::render(rows({{0.5, 0.5, 0.5, 1}}), 1.0, o);
+  int red = 0, green = 0, blue = 0;
+  for (int y = 300 - 48; y < 300; ++y)
+    for (int x = 0; x < 48; ++x) {
+      const Pixel p = img.pixel(x, y);
+      red += p[0] > 150 && p[1] < 100 && p[2] < 100;
+      green += p[1] > 100 && p[0] < 100 && p[2] < 100;
+      blue += p[2] > 150 && p[0] < 100 && p[1] < 150;
+    }
+  EXPECT_GT(red, 5);
+  EXPECT_GT(green, 5);
+  EXPECT_GT(blue, 5);
+}
+
+TEST(SnapshotRenderer, ScaleBarIsARoundLengthAtTheMapsScale) {
+  // Top view of 20 m x 10 m in 400 x 300 pixels: 0.9 of the limiting width, so 20 m span
+  // 0.9 * 400 = 360 px (18 px a metre); a fifth of the width is 4.4 m, rounded down to 2 m: 36 px.
+  std::vector<std::array<double, 4>> v;
+  for (int i = 0; i < 20; ++i)
+    for (int j = 0; j < 10; ++j) v.push_back({i + 0.5, j + 0.5, 0.0, 1.0});
+  SnapshotOptions o = flat_top_view(400, 300);
+  o.scale_bar = true;
+  o.color_by = ColorBy::kFixed;
+  o.fixed_color = {0.0, 0.0, 1.0};
+  const RgbImage img = SnapshotRenderer::render(rows(v), 1.0, o);
+  // The longest run of light (ink on black) pixels in a row of the bottom band.
+  int longest = 0;
+  for (int y = 240; y < 300; ++y) {
+    int run = 0;
+    for (int x = 0; x < 400; ++x) {
+      const Pixel p = img.pixel(x, y);
+      run = p[0] > 150 && p[1] > 150 && p[2] > 150 ? run + 1 : 0;
+      longest = std::max(longest, run);
+    }
+  }
+  EXPECT_NEAR(longest, 36, 3);
+}
+
+TEST(SnapshotRenderer, ZDownTurnsTheTopViewSoPlusYPointsDown) {
+  SnapshotOptions o = flat_top_view(200, 200);
+  o.z_down = true;
+  o.color_by = ColorBy::kFixed;
+  o.fixed_color = {1.0, 0.0, 0.0};
+  // One voxel at +y, one at +x; the frame is [-10, 10]^2.
+  const RgbImage img =
+      SnapshotRenderer::render(rows({{0.5, 9.5, 0, 1}, {9.5, 0.5, 0, 1}, {-9.5, -9.5, 0, 1}}), 1.0, o);
+  const TopViewFrame f(-10, 10, -10, 10, 200, 200);
+  // +x stays to the right; +y is mirrored to the bottom of the image.
+  EXPECT_TRUE(near(f.at(img, 9.5, -0.5), {255, 0, 0})) << "+x to the right";
+  EXPECT_TRUE(near(f.at(img, 0.5, -9.5), {255, 0, 0})) << "+y at the bottom";
+  EXPECT_TRUE(near(f.at(img, 0.5, 9.5), kBlack));
 }
 
 TEST(SnapshotRenderer, RendersTheOccupiedVoxelsOfABackend) {

@@ -43,6 +43,11 @@ class SnapshotOptions:
     background: Tuple[float, float, float]
     lighting: bool
     title: str
+    color_bar_title: str
+    z_down: bool
+    axes: bool
+    scale_bar: bool
+    sensor_positions: npt.NDArray[np.float64]
     def __init__(self) -> None: ...
     def validate(self) -> None: ...
 

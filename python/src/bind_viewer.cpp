@@ -47,23 +47,33 @@ void bind_viewer(py::module_& m) {
       .def_readwrite("color_by", &viewer::SnapshotOptions::color_by)
       .def_property(
           "fixed_color", [](const viewer::SnapshotOptions& o) { return py::make_tuple(o.fixed_color.r, o.fixed_color.g, o.fixed_color.b); },
-          [](viewer::SnapshotOptions& o, const py::handle& c) { o.fixed_color = rgb_from(c, "fixed_color"); },
+          [](viewer::SnapshotOptions& o, const ArrayLike& c) { o.fixed_color = rgb_from(c, "fixed_color"); },
           "(r, g, b) in [0, 1]")
       .def_readwrite("color_min", &viewer::SnapshotOptions::color_min)
       .def_readwrite("color_max", &viewer::SnapshotOptions::color_max)
       .def_property(
           "voxel_rgb", [](const viewer::SnapshotOptions& o) { return to_numpy(o.voxel_rgb); },
-          [](viewer::SnapshotOptions& o, const py::handle& c) { o.voxel_rgb = colors_from(c, "voxel_rgb"); },
+          [](viewer::SnapshotOptions& o, const ArrayLike& c) { o.voxel_rgb = colors_from(c, "voxel_rgb"); },
           "ColorBy.kRgb: (N, 3) uint8, one row per voxel row")
       .def_readwrite("color_bar", &viewer::SnapshotOptions::color_bar)
       .def_readwrite("shape", &viewer::SnapshotOptions::shape)
       .def_readwrite("point_size", &viewer::SnapshotOptions::point_size)
       .def_property(
           "background", [](const viewer::SnapshotOptions& o) { return py::make_tuple(o.background.r, o.background.g, o.background.b); },
-          [](viewer::SnapshotOptions& o, const py::handle& c) { o.background = rgb_from(c, "background"); },
+          [](viewer::SnapshotOptions& o, const ArrayLike& c) { o.background = rgb_from(c, "background"); },
           "(r, g, b) in [0, 1]")
       .def_readwrite("lighting", &viewer::SnapshotOptions::lighting)
       .def_readwrite("title", &viewer::SnapshotOptions::title)
+      .def_readwrite("color_bar_title", &viewer::SnapshotOptions::color_bar_title,
+                     "empty: 'probability', 'height (m)' or with z_down 'depth (m)'")
+      .def_readwrite("z_down", &viewer::SnapshotOptions::z_down,
+                     "the map's +z points down (sonar, NED): presets turned so the surface is on top; depth colours")
+      .def_readwrite("axes", &viewer::SnapshotOptions::axes, "an axes triad in the lower-left corner")
+      .def_readwrite("scale_bar", &viewer::SnapshotOptions::scale_bar, "a scale bar beside it (parallel views)")
+      .def_property(
+          "sensor_positions", [](const viewer::SnapshotOptions& o) { return to_numpy(o.sensor_positions); },
+          [](viewer::SnapshotOptions& o, const ArrayLike& p) { o.sensor_positions = points_from(p, "sensor_positions"); },
+          "(N, 3) metres, map frame: the sensor's track (a line; markers when N <= 20; the last one larger)")
       .def("validate", &viewer::SnapshotOptions::validate);
 
   const auto to_image = [](const viewer::RgbImage& img) {

@@ -150,6 +150,9 @@ def test_help_names_types_as_users_import_them():
     import re
 
     text = pydoc.render_doc(iwlomap, renderer=pydoc.plaintext)
+    for sub in (iwlomap.iwlo, getattr(iwlomap, "viewer", None)):
+        if sub is not None:
+            text += pydoc.render_doc(sub, renderer=pydoc.plaintext)
     assert not re.search(r"\bhandle\b", text)
     assert "_iwlomap." not in text
     assert "points: numpy.typing.ArrayLike" in text

@@ -58,3 +58,29 @@ def test_render_without_a_display_uses_a_private_virtual_x_server(tmp_path):
     run = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
     assert run.returncode != 0 and "xvfb-run" in run.stderr and "not found" in run.stderr
 
+
+
+def test_sensor_track_and_marks_are_options():
+    """sensor_positions, axes, scale_bar and z_down go through to the renderer: the track is drawn
+    dark where the map has no voxel, and turning the marks off leaves the corner empty."""
+    v = iwlomap.viewer
+    voxels = np.array([[x + 0.5, y + 0.5, 0.0, 1.0] for x in range(-10, 0) for y in range(-10, 10)])
+    o = v.SnapshotOptions()
+    o.width, o.height = 200, 200
+    o.camera = v.CameraPreset.kTop
+    o.color_bar = False
+    o.lighting = False
+    o.background = (1.0, 1.0, 1.0)
+    o.axes = False
+    o.scale_bar = False
+    plain = v.render(voxels, 1.0, o)
+    assert (plain[150:, :40] == 255).all(), "no marks: the lower-left corner is background"
+    o.sensor_positions = np.array([[9.5, 0.0, 0.0]])
+    assert o.sensor_positions.shape == (1, 3)
+    o.axes = True
+    o.z_down = True
+    marked = v.render(voxels, 1.0, o)
+    assert marked[100, 190].sum() < 150, "a dark marker at the sensor (right edge, middle)"
+    assert (marked[150:, :40] != 255).any(), "the axes triad in the lower-left corner"
+    with pytest.raises(ValueError):
+        o.sensor_positions = np.zeros((2, 2))

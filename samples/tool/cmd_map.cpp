@@ -339,8 +339,12 @@ int run_map(const std::vector<std::string>& argv) {
   else if (output)
     save_cloud(files.temporary(*output), occupied, *output, info);
   written_items += output ? 1 : 0;
+  SnapshotMarks marks;  // each file's sensor position, joined in order
+  marks.sensor_positions.resize(static_cast<Eigen::Index>(integrated_poses.size()), 3);
+  for (std::size_t i = 0; i < integrated_poses.size(); ++i)
+    marks.sensor_positions.row(static_cast<Eigen::Index>(i)) = integrated_poses[i].translation().transpose();
   written_items = write_map_outputs(extra, files, *setup.map, threshold, colors ? &*colors : nullptr,
-                                    MapOutputsProgress{&writing, written_items});
+                                    MapOutputsProgress{&writing, written_items}, marks);
   if (poses_out) {
     writing.update(written_items, std::filesystem::path(*poses_out).filename().string());
     write_trajectory(files.temporary(*poses_out), integrated_poses, all_stamped ? stamps : std::vector<double>{},

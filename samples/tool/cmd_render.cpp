@@ -14,6 +14,7 @@
 #include "output_files.h"
 
 #include <iwlomap/viewer/pcl_adapter.h>
+#include <iwlomap/trajectory_io.h>
 #include <iwlomap/viewer/snapshot_renderer.h>
 
 #include <algorithm>
@@ -66,6 +67,13 @@ voxels:
   --resolution M              voxel edge in metres (default: inferred from the voxel centres)
   --background COLOR          background colour (default #f2f3f5)
   --no-lighting               flat colours, exactly as the colour map gives them
+  --no-axes                   no axes triad (x red, y green, z blue) in the lower-left corner
+  --no-scale-bar              no scale bar (parallel views draw one beside the triad)
+  --z-down                    the map's +z points down (a sonar or NED frame): the views are
+                              turned so the surface is on top, and height colours read as depth
+  --trajectory FILE           draw the sensor positions of a TUM or KITTI (.kitti) pose file as
+                              markers joined by a line, the last one larger (as 'map
+                              --write-poses' and 'sonar --write-poses' write them)
 
 COLOR is #rrggbb or R,G,B with components in [0, 1].
 )";
@@ -145,6 +153,15 @@ viewer::SnapshotOptions options_from(const Args& args) {
   o.shape = args.flag("--points") ? viewer::VoxelShape::kPoints : viewer::VoxelShape::kCubes;
   o.point_size = args.number("--point-size", o.point_size);
   o.lighting = !args.flag("--no-lighting");
+  o.axes = !args.flag("--no-axes");
+  o.scale_bar = !args.flag("--no-scale-bar");
+  o.z_down = args.flag("--z-down");
+  if (const auto path = args.value("--trajectory")) {
+    const auto poses = read_trajectory(*path, extension(*path) == ".kitti" ? TrajectoryFormat::kKitti : TrajectoryFormat::kTum);
+    o.sensor_positions.resize(static_cast<Eigen::Index>(poses.size()), 3);
+    for (std::size_t i = 0; i < poses.size(); ++i)
+      o.sensor_positions.row(static_cast<Eigen::Index>(i)) = poses[i].translation().transpose();
+  }
   try {
     o.validate();
   } catch (const std::invalid_argument& e) {
@@ -160,8 +177,10 @@ viewer::SnapshotOptions options_from(const Args& args) {
 int run_render(const std::vector<std::string>& argv) {
   const Args args(argv,
                   {"-o", "--output", "--width", "--height", "--title", "--camera", "--eye", "--target", "--up",
-                   "--color", "--color-range", "--fixed-color", "--point-size", "--resolution", "--background"},
-                  {"-h", "--help", "--perspective", "--no-color-bar", "--points", "--no-lighting"});
+                   "--color", "--color-range", "--fixed-color", "--point-size", "--resolution", "--background",
+                   "--trajectory"},
+                  {"-h", "--help", "--perspective", "--no-color-bar", "--points", "--no-lighting", "--no-axes",
+                   "--no-scale-bar", "--z-down"});
   if (args.flag("-h") || args.flag("--help")) {
     std::cout << kHelp;
     return 0;

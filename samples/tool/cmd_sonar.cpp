@@ -108,6 +108,10 @@ registration (corrects drifting navigation poses against the map):
   --submap-pings K          pings per submap (default 80; aim at about 8 m of travel)
   --write-poses FILE.txt    the pose each ping was integrated at, one per line, as
                             x y z qw qx qy qz (a --poses format)
+
+A --snapshot shows the sonar's track; when the sonar's +z (down) points along the map's +z on
+average (an NED frame, or no --poses), the map's z is depth: the picture puts the surface on top
+and colours by depth.
 )";
 
 // One pose per non-empty line; see kHelp for the three accepted forms.
@@ -356,7 +360,17 @@ int run_sonar(const std::vector<std::string>& argv) {
   pcl::PointCloud<pcl::PointXYZI> occupied;
   occupied_to_cloud(*setup.map, setup.params.occupied_threshold, occupied);
   save_cloud(files.temporary(*output), occupied, *output, MapCloudInfo{setup.map->get_resolution(), false});
-  write_map_outputs(extra, files, *setup.map, setup.params.occupied_threshold);
+  // The snapshot: the sonar's track; the map's z is depth when the sonar's +z (down in its own
+  // frame) points along the map's +z on average.
+  SnapshotMarks marks;
+  double down = 0.0;
+  marks.sensor_positions.resize(static_cast<Eigen::Index>(integrated.size()), 3);
+  for (std::size_t i = 0; i < integrated.size(); ++i) {
+    marks.sensor_positions.row(static_cast<Eigen::Index>(i)) = integrated[i].translation().transpose();
+    down += integrated[i].linear()(2, 2);
+  }
+  marks.z_down = down > 0.0;
+  write_map_outputs(extra, files, *setup.map, setup.params.occupied_threshold, nullptr, {}, marks);
   files.commit();
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
   if (!quiet) {

@@ -50,7 +50,8 @@ std::size_t map_outputs_count(const MapOutputs& outputs) {
 }
 
 std::size_t write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMapperBackend& map,
-                              double min_probability, const VoxelColorMeans* colors, MapOutputsProgress progress) {
+                              double min_probability, const VoxelColorMeans* colors, MapOutputsProgress progress,
+                              const SnapshotMarks& marks) {
   std::size_t item = progress.first_item;
   const auto starting = [&](const std::string& path) {
     if (progress.bar != nullptr) progress.bar->update(item, std::filesystem::path(path).filename().string());
@@ -79,6 +80,8 @@ std::size_t write_map_outputs(const MapOutputs& outputs, const OutputFiles& file
     viewer::SnapshotOptions options;
     options.title = "iwlomap: " + std::to_string(voxels.rows()) + " occupied voxels at " +
                     shortest(map.get_resolution()) + " m";
+    options.sensor_positions = marks.sensor_positions;
+    options.z_down = marks.z_down;
     if (colors != nullptr) {
       options.color_by = viewer::ColorBy::kRgb;
       options.voxel_rgb = colors->colors_at(voxels);
@@ -95,6 +98,7 @@ std::size_t write_map_outputs(const MapOutputs& outputs, const OutputFiles& file
   (void)min_probability;
   (void)colors;
   (void)starting;
+  (void)marks;
   return item;
 }
 

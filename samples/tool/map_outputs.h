@@ -9,6 +9,8 @@
 #include <iwlomap/mapper_backend.h>
 #include <iwlomap/voxel_colors.h>
 
+#include <Eigen/Core>
+
 #include <optional>
 #include <string>
 
@@ -27,6 +29,13 @@ struct MapOutputs {
 /// The number of outputs \p outputs asks for (0 to 2).
 [[nodiscard]] std::size_t map_outputs_count(const MapOutputs& outputs);
 
+/// What the snapshot marks beside the voxels: the sensor positions (N x 3, map frame; a line
+/// joins them), and a map frame whose +z points down (sonar: depth, surface on top).
+struct SnapshotMarks {
+  Eigen::MatrixXd sensor_positions = Eigen::MatrixXd(0, 3);
+  bool z_down = false;
+};
+
 /// A bar that write_map_outputs() moves: each output is one item, from \p first_item on.
 struct MapOutputsProgress {
   class Progress* bar = nullptr;
@@ -39,7 +48,7 @@ struct MapOutputsProgress {
 /// the item after the last one written.
 std::size_t write_map_outputs(const MapOutputs& outputs, const OutputFiles& files, IMapperBackend& map,
                               double min_probability, const VoxelColorMeans* colors = nullptr,
-                              MapOutputsProgress progress = {});
+                              MapOutputsProgress progress = {}, const SnapshotMarks& marks = {});
 
 /// Help lines for --octomap and --snapshot.
 [[nodiscard]] const char* map_outputs_help();

@@ -289,6 +289,10 @@ expect map_colour_ply_properties bash -c "head -c 400 '$WORK/colour_out.ply' | g
 check map_colour_off 0 "$TOOL" map "$WORK/colour_wall.pcd" --resolution 0.1 --sensor lidar --no-colors -o "$WORK/colour_off.pcd"
 expect map_colour_off_no_field grep -aq "^FIELDS x y z intensity$" "$WORK/colour_off.pcd"
 if has_layer viewer && [ -n "${DISPLAY:-}" ]; then
+  printf '0 0 0 1.5 0 0 0 1\n1 2 1 1.5 0 0 0 1\n' > "$WORK/track.tum"
+  check render_marks 0 "$TOOL" render "$WORK/occupied.pcd" --trajectory "$WORK/track.tum" --z-down --no-scale-bar -o "$WORK/marks.png"
+  expect render_marks_png test -s "$WORK/marks.png"
+  check render_bad_trajectory 1 "$TOOL" render "$WORK/occupied.pcd" --trajectory "$WORK/occupied.pcd" -o "$WORK/x.png"
   check render_rgb 0 "$TOOL" render "$WORK/colour_out.pcd" --color rgb -o "$WORK/colour.png"
   expect render_rgb_png test -s "$WORK/colour.png"
   check render_rgb_without_colours 1 "$TOOL" render "$WORK/occupied.pcd" --color rgb -o "$WORK/x.png"

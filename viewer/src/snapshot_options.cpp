@@ -56,6 +56,11 @@ void SnapshotOptions::validate() const {
   if (color_min && color_max && !(*color_min < *color_max))
     throw std::invalid_argument("SnapshotOptions: color_min " + num(*color_min) + " is not below color_max " +
                                 num(*color_max));
+  if (sensor_positions.cols() != 3 && sensor_positions.rows() > 0)
+    throw std::invalid_argument("SnapshotOptions: sensor_positions has " + std::to_string(sensor_positions.cols()) +
+                                " columns, expected 3 (x, y, z)");
+  if (!sensor_positions.allFinite())
+    throw std::invalid_argument("SnapshotOptions: sensor_positions has a non-finite value");
   if (!(point_size > 0.0 && point_size <= 64.0))
     throw std::invalid_argument("SnapshotOptions: point_size " + num(point_size) + " is outside (0, 64]");
 }

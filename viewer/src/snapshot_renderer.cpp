@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "iwlomap/viewer/snapshot_renderer.h"
 
+#include "snapshot_marks.h"
 #include "vtk_errors.h"
 #include "x_display.h"
 
@@ -67,7 +68,7 @@ struct Scene {
   double z_min = 0.0, z_max = 0.0;      // voxel centres
 };
 
-Scene collect(const Eigen::MatrixXd& v, double resolution, bool need_probability) {
+Scene collect(const Eigen::MatrixXd& v, double resolution, bool need_probability, const Eigen::MatrixXd& sensors) {
   Scene s;
   s.rows.reserve(static_cast<std::size_t>(v.rows()));
   Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
@@ -80,7 +81,12 @@ Scene collect(const Eigen::MatrixXd& v, double resolution, bool need_probability
     lo = lo.cwiseMin(Eigen::Vector3d(x, y, z));
     hi = hi.cwiseMax(Eigen::Vector3d(x, y, z));
   }
-  if (s.rows.empty()) {
+  // The sensor positions are framed with the voxels.
+  for (Eigen::Index i = 0; i < sensors.rows(); ++i) {
+    lo = lo.cwiseMin(sensors.row(i).transpose());
+    hi = hi.cwiseMax(sensors.row(i).transpose());
+  }
+  if (s.rows.empty() && sensors.rows() == 0) {
     // Nothing to frame: a cube of one metre around the origin keeps the camera maths finite.
     s.box_min = Eigen::Vector3d::Constant(-0.5);
     s.box_max = Eigen::Vector3d::Constant(0.5);
@@ -89,6 +95,14 @@ Scene collect(const Eigen::MatrixXd& v, double resolution, bool need_probability
   } else {
     s.z_min = lo.z();
     s.z_max = hi.z();
+    if (!s.rows.empty()) {  // the colour range: voxel centres only
+      s.z_min = std::numeric_limits<double>::infinity();
+      s.z_max = -s.z_min;
+      for (const Eigen::Index i : s.rows) {
+        s.z_min = std::min(s.z_min, v(i, 2));
+        s.z_max = std::max(s.z_max, v(i, 2));
+      }
+    }
     s.box_min = lo.array() - resolution / 2.0;
     s.box_max = hi.array() + resolution / 2.0;
   }
@@ -178,8 +192,11 @@ Eigen::Vector3d preset_direction(CameraPreset p) {  // from the target towards t
 
 Eigen::Vector3d preset_up(CameraPreset p) { return p == CameraPreset::kTop ? Eigen::Vector3d::UnitY() : Eigen::Vector3d::UnitZ(); }
 
-/// Points the camera and frames the scene's box (relative coordinates: the box is centred at 0).
-void place_camera(vtkCamera* camera, const SnapshotOptions& o, const Scene& s, double aspect) {
+/// Points the camera and frames the scene (relative coordinates: the box is centred at 0). A
+/// parallel view frames the cubes and sensor positions as the camera sees them, not the corners
+/// of their bounding box, which stick out of the picture in oblique views.
+void place_camera(vtkCamera* camera, const SnapshotOptions& o, const Scene& s, double aspect, const Eigen::MatrixXd& v,
+                  double resolution) {
   const Eigen::Vector3d half = (s.box_max - s.box_min) / 2.0;
   const double radius = std::max(half.norm(), 1e-9);
   Eigen::Vector3d target = Eigen::Vector3d::Zero(), dir, up;
@@ -190,6 +207,10 @@ void place_camera(vtkCamera* camera, const SnapshotOptions& o, const Scene& s, d
   } else {
     dir = preset_direction(o.camera);
     up = preset_up(o.camera);
+    if (o.z_down) {  // half a turn about +x: a proper rotation, so the image is not mirrored
+      dir = Eigen::Vector3d(dir.x(), -dir.y(), -dir.z());
+      up = Eigen::Vector3d(up.x(), -up.y(), -up.z());
+    }
   }
   if (o.perspective && o.camera_pose) {
     const Eigen::Vector3d eye = o.camera_pose->eye - s.centre;
@@ -226,12 +247,40 @@ void place_camera(vtkCamera* camera, const SnapshotOptions& o, const Scene& s, d
   const Eigen::Vector3d view(vp[0], vp[1], vp[2]), cam_up(vu[0], vu[1], vu[2]);
   const Eigen::Vector3d right = view.cross(cam_up).normalized();
   double half_w = 0.0, half_h = 0.0;
-  for (int c = 0; c < 8; ++c) {
-    const Eigen::Vector3d corner((c & 1) ? half.x() : -half.x(), (c & 2) ? half.y() : -half.y(),
-                                 (c & 4) ? half.z() : -half.z());
-    const Eigen::Vector3d rel = corner - target;
-    half_w = std::max(half_w, std::abs(rel.dot(right)));
-    half_h = std::max(half_h, std::abs(rel.dot(cam_up)));
+  if (o.camera_pose) {  // the target stays at the centre: the box's corners around it
+    for (int c = 0; c < 8; ++c) {
+      const Eigen::Vector3d corner((c & 1) ? half.x() : -half.x(), (c & 2) ? half.y() : -half.y(),
+                                   (c & 4) ? half.z() : -half.z());
+      const Eigen::Vector3d rel = corner - target;
+      half_w = std::max(half_w, std::abs(rel.dot(right)));
+      half_h = std::max(half_h, std::abs(rel.dot(cam_up)));
+    }
+  } else {
+    // Each cube's extent along the image axes (its centre's projection plus half an edge times the
+    // axis' components), and each sensor position: the view is centred on what is drawn.
+    const double cube_w = resolution / 2.0 * right.cwiseAbs().sum();
+    const double cube_h = resolution / 2.0 * cam_up.cwiseAbs().sum();
+    double lo_w = std::numeric_limits<double>::infinity(), hi_w = -lo_w, lo_h = lo_w, hi_h = -lo_w;
+    const auto take = [&](const Eigen::Vector3d& p, double ew, double eh) {
+      const double pw = p.dot(right), ph = p.dot(cam_up);
+      lo_w = std::min(lo_w, pw - ew);
+      hi_w = std::max(hi_w, pw + ew);
+      lo_h = std::min(lo_h, ph - eh);
+      hi_h = std::max(hi_h, ph + eh);
+    };
+    for (const Eigen::Index i : s.rows) take(Eigen::Vector3d(v(i, 0), v(i, 1), v(i, 2)) - s.centre, cube_w, cube_h);
+    for (Eigen::Index i = 0; i < o.sensor_positions.rows(); ++i)
+      take(o.sensor_positions.row(i).transpose() - s.centre, 0.0, 0.0);
+    if (!(lo_w <= hi_w)) lo_w = hi_w = lo_h = hi_h = 0.0;  // nothing drawn
+    half_w = std::max((hi_w - lo_w) / 2.0, 1e-9);
+    half_h = std::max((hi_h - lo_h) / 2.0, 1e-9);
+    // Slide the camera in its image plane onto the middle of what is drawn.
+    const Eigen::Vector3d shift = right * ((lo_w + hi_w) / 2.0) + cam_up * ((lo_h + hi_h) / 2.0);
+    double pos[3], focal[3];
+    camera->GetPosition(pos);
+    camera->GetFocalPoint(focal);
+    camera->SetPosition(pos[0] + shift.x(), pos[1] + shift.y(), pos[2] + shift.z());
+    camera->SetFocalPoint(focal[0] + shift.x(), focal[1] + shift.y(), focal[2] + shift.z());
   }
   camera->SetParallelScale(std::max({half_h, half_w / aspect, 1e-9}) / kFill);
 }
@@ -324,7 +373,10 @@ RgbImage render_scene(void* display, const Eigen::MatrixXd& v, double resolution
   renderer->SetViewport(0.0, 0.0, map_x1, map_y1);
   renderer->AddActor(actor);
   if (o.lighting) add_lights(renderer);
-  place_camera(renderer->GetActiveCamera(), o, scene, map_aspect);
+  place_camera(renderer->GetActiveCamera(), o, scene, map_aspect, v, resolution);
+  // The sensor's positions: markers of about a hundredth of the scene, at least a voxel.
+  detail::add_sensor_track(renderer, o.sensor_positions, scene.centre,
+                           std::max(resolution, 0.006 * (scene.box_max - scene.box_min).norm()));
   const double rel_min[3] = {scene.box_min.x() - scene.centre.x(), scene.box_min.y() - scene.centre.y(),
                              scene.box_min.z() - scene.centre.z()};
   const double bounds[6] = {rel_min[0], -rel_min[0], rel_min[1], -rel_min[1], rel_min[2], -rel_min[2]};
@@ -354,7 +406,11 @@ RgbImage render_scene(void* display, const Eigen::MatrixXd& v, double resolution
       lut->SetTableValue(static_cast<vtkIdType>(i), table[i].r, table[i].g, table[i].b, 1.0);
     lut->SetTableRange(lo, hi);
     bar_actor->SetLookupTable(lut);
-    bar_actor->SetTitle(o.color_by == ColorBy::kProbability ? "probability" : "height (m)");
+    const std::string bar_title = !o.color_bar_title.empty()             ? o.color_bar_title
+                                  : o.color_by == ColorBy::kProbability ? std::string("probability")
+                                  : o.z_down                            ? std::string("depth (m)")
+                                                                        : std::string("height (m)");
+    bar_actor->SetTitle(bar_title.c_str());
     constexpr int kLabels = 5;
     bar_actor->SetNumberOfLabels(kLabels);
     const std::string label_format = "%." + std::to_string(label_decimals(lo, hi, kLabels)) + "f";
@@ -384,9 +440,23 @@ RgbImage render_scene(void* display, const Eigen::MatrixXd& v, double resolution
   window->SetOffScreenRendering(1);
   window->SetMultiSamples(0);
   window->SetSize(w, h);
-  window->SetNumberOfLayers(2);
+  window->SetNumberOfLayers(3);
   window->AddRenderer(overlay);
   window->AddRenderer(renderer);
+  // Marks on top of the map, in its lower-left corner: the axes triad, then the scale bar.
+  const int triad_px = std::clamp(static_cast<int>(std::lround(std::min(w, h) * 0.16)), 40, 260);
+  if (o.axes)
+    detail::add_axes_triad(window, renderer->GetActiveCamera(), triad_px, w, h, ink, label_px);
+  vtkNew<vtkRenderer> front;
+  front->SetLayer(2);
+  front->InteractiveOff();
+  if (o.scale_bar && !o.perspective) {
+    const double map_h_px = map_y1 * h;
+    const double metres_per_pixel = 2.0 * renderer->GetActiveCamera()->GetParallelScale() / map_h_px;
+    detail::add_scale_bar(front, metres_per_pixel, static_cast<int>(map_x1 * w), (o.axes ? triad_px : 0) + label_px,
+                          std::max(label_px, triad_px / 5), ink, label_px);
+    window->AddRenderer(front);
+  }
   // Edge smoothing after the fact: much cheaper than multisampling on a software rasteriser, and it
   // leaves the inside of flat regions untouched.
   renderer->UseFXAAOn();
@@ -436,7 +506,7 @@ RgbImage SnapshotRenderer::render(const Eigen::MatrixXd& voxels_xyzp, double res
     throw std::invalid_argument("SnapshotRenderer: resolution " + num(resolution) +
                                 " is not a positive finite number of metres");
   // Everything that can be wrong with the input is reported before the display is needed.
-  const Scene scene = collect(voxels_xyzp, resolution, options.color_by == ColorBy::kProbability);
+  const Scene scene = collect(voxels_xyzp, resolution, options.color_by == ColorBy::kProbability, options.sensor_positions);
   const auto [lo, hi] = color_range(options, scene, resolution);
   // Xlib (without XInitThreads) and VTK's object factories are not thread-safe: one render at a time.
   static std::mutex one_at_a_time;

@@ -71,9 +71,10 @@ struct SnapshotOptions {
   CameraPreset camera = CameraPreset::kIso;
   /// When set, replaces the preset: the view goes from eye to target with this up direction.
   std::optional<CameraPose> camera_pose;
-  /// false (default): parallel projection, scaled so the bounding box of the cubes fills 90% of the
-  /// limiting dimension of the map area (the image minus the colour-bar and title bands), centred
-  /// (an explicit pose puts its target at the centre; only its direction matters). true: a
+  /// false (default): parallel projection, scaled so the cubes (and sensor positions) as seen from
+  /// the camera fill 90% of the limiting dimension of the map area (the image minus the colour-bar
+  /// and title bands), centred on them (an explicit pose puts its target at the centre; only its
+  /// direction matters). true: a
   /// 30-degree perspective camera; presets move back until the bounding sphere fits, an explicit
   /// pose is used as given.
   bool perspective = false;
@@ -89,6 +90,23 @@ struct SnapshotOptions {
   ColorMatrix voxel_rgb;
   /// A labelled colour bar on the right (ignored for ColorBy::kFixed and kRgb).
   bool color_bar = true;
+  /// The colour bar's title; empty: "probability", or for ColorBy::kHeight "height (m)" ("depth
+  /// (m)" with z_down).
+  std::string color_bar_title;
+
+  /// The map frame's +z points down (a sonar or NED frame, where z is depth): the camera presets
+  /// are turned half a turn about +x so the surface is on top (kTop then looks along +z with +x to
+  /// the right and +y down the image), and the height colour bar reads "depth (m)".
+  bool z_down = false;
+  /// An axes triad in the lower-left corner, turned as the view is: x red, y green, z blue.
+  bool axes = true;
+  /// A scale bar beside the triad: a round length in metres (1, 2 or 5 times a power of ten) drawn
+  /// to the map's scale. Parallel views only (a perspective view has no single scale).
+  bool scale_bar = true;
+  /// Sensor positions in metres (map frame), N x 3 (N may be 0), joined in order by a dark line
+  /// when there are two or more (the trajectory), each one marked when there are at most 20, the
+  /// last one by a larger marker. They are framed with the voxels.
+  Eigen::MatrixXd sensor_positions = Eigen::MatrixXd(0, 3);
 
   VoxelShape shape = VoxelShape::kCubes;
   double point_size = 3.0;  ///< pixels, for VoxelShape::kPoints; in (0, 64]
