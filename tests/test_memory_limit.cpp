@@ -106,6 +106,19 @@ TEST_F(MemoryLimit, RefusesAScanWhoseRayScratchWouldPassIt) {
   }
 }
 
+// While the scratch's chunk array doubles, the old array and the new one are both held: a
+// doubling is refused when their sum would pass the limit. Under 90 MiB, 4,096 chunks (32 MiB)
+// may not become 8,192 (64 MiB new + 32 MiB old), though the 64 MiB alone would fit.
+TEST_F(MemoryLimit, CountsBothChunkArraysWhileTheScratchGrows) {
+  const SyntheticScan s = make_synthetic_scan();
+  ProbabilityUpdater map(0.002);
+  set_map_memory_limit(get_map_memory_in_use() + 90 * kMiB);
+  EXPECT_THROW(map.insert_scan(s.origin, s.points, s.intensities), MemoryLimitError);
+  set_map_memory_limit(0);
+  EXPECT_LT(map.get_memory_usage().memory_mb, 48.0) << "the scratch stopped at 4,096 chunks";
+  EXPECT_GT(map.get_memory_usage().memory_mb, 30.0);
+}
+
 // Batches and the Disk backend's tiles are checked as slabs are mapped: the error is the same
 // MemoryLimitError, and the map stays usable.
 TEST_F(MemoryLimit, BatchesAndDiskTilesStopAtTheLimit) {

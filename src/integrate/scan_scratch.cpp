@@ -20,9 +20,10 @@ namespace iwlomap::detail {
 std::size_t ScanScratch::chunk(const VoxelKey& chunk_key) {
   const auto next = static_cast<std::uint32_t>(chunks_.size());
   // Growing the chunk array is where a scan's scratch takes memory (8 KiB per chunk): checked
-  // against the map memory limit before the index or the array changes.
+  // against the map memory limit before the index or the array changes. While the array doubles,
+  // the old one (n chunks) and the new one (2n) are both held: 3n, not the 2n that remains.
   if (chunks_.size() == chunks_.capacity() && chunk_index_.find(chunk_key) == FlatKeyMap::kEmpty)
-    check_map_memory(2 * chunks_.size() * sizeof(Chunk), "the scan's ray scratch");
+    check_map_memory(3 * chunks_.size() * sizeof(Chunk), "the scan's ray scratch");
   const std::uint32_t i = chunk_index_.insert(chunk_key, next);
   if (i == next) {
     chunks_.emplace_back();
