@@ -53,7 +53,7 @@ BACKEND_KIT = {
     "backends/disk/file_io.h", "backends/disk/map_directory.h", "backends/disk/map_manifest.h",
     "backends/disk/tile_file.h",
     "integrate/absolute_log_odds.h", "integrate/batch_input.h", "integrate/hit_accumulator.h",
-    "integrate/scan_apply.h", "integrate/scan_scratch.h", "integrate/updater.h",
+    "integrate/progress_report.h", "integrate/scan_apply.h", "integrate/scan_scratch.h", "integrate/updater.h",
     "integrate/voxel_update.h",
     "model/checks.h", "model/probability_above.h",
     "storage/block_grid.h", "storage/free_memory.h", "storage/grid_reads.h",
