@@ -346,15 +346,12 @@ void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::Matri
   const auto observe = [&m](detail::VoxelBlock& b, int index, const VoxelKey& key, double intensity, bool occupied) {
     m.observe(b, index, key, intensity, occupied, 1.0);
   };
-  // The octree update is on this thread: reported by 64 chunks (an exception of the callback is
-  // rethrown once the scan is applied in full).
+  // The octree update is on this thread (an exception of the progress callback is rethrown once
+  // the scan is applied in full).
   std::exception_ptr deferred;
-  const std::size_t chunks = m.scratch.num_chunks();
-  detail::StageProgress report(&get_progress_callback(), ProgressStage::kUpdatingVoxels, chunks + 1, &deferred);
-  for (std::size_t c = 0; c < chunks; c += 64) {
-    detail::apply_scan_free(m.scratch, m.grid, c, std::min(c + 64, chunks), observe);
-    report.report(std::min(c + 64, chunks));
-  }
+  detail::StageProgress report(&get_progress_callback(), ProgressStage::kUpdatingVoxels, m.scratch.num_chunks() + 1,
+                               &deferred);
+  detail::apply_scan_free_reporting(m.scratch, m.grid, report, observe);
   detail::apply_scan_hits(m.scratch, m.grid, observe);
   report.finish();
   m.skipped += skip;

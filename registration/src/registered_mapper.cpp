@@ -51,8 +51,7 @@ RegisteredScan RegisteredMapper::process(Scan&& scan, State& state, const StopTo
 }
 
 void RegisteredMapper::integrate(const Eigen::Isometry3d& pose, Eigen::MatrixXd points_sensor) {
-  const Eigen::Index n = points_sensor.rows();
-  submit(pose, std::move(points_sensor), Eigen::VectorXd::Zero(n), true);
+  submit(pose, std::move(points_sensor), Eigen::VectorXd(), true);
 }
 
 void RegisteredMapper::integrate(const Eigen::Isometry3d& pose, Eigen::MatrixXd points_sensor,
@@ -66,7 +65,7 @@ void RegisteredMapper::submit(const Eigen::Isometry3d& pose, Eigen::MatrixXd poi
   if (points_sensor.cols() != 3 && points_sensor.rows() > 0)
     throw std::invalid_argument("iwlomap: RegisteredMapper: the scan has " + std::to_string(points_sensor.cols()) +
                                 " columns, expected 3");
-  if (intensities.size() != points_sensor.rows())
+  if (!all_returns && intensities.size() != points_sensor.rows())
     throw std::invalid_argument("iwlomap: RegisteredMapper: " + std::to_string(intensities.size()) +
                                 " intensities for " + std::to_string(points_sensor.rows()) + " points");
   job_.submit(Scan{pose, std::move(points_sensor), std::move(intensities), all_returns});

@@ -66,13 +66,13 @@ std::optional<double> finite_number(const std::string& w) {
   return v;
 }
 
-// Reads header lines (up to the line that starts with `last`) with the offset of the data after it.
 // The text of a comment line after its marker (which ends at \p marker_end) and the blanks after it.
 std::string after_marker(const std::string& line, std::size_t marker_end) {
   const std::size_t start = line.find_first_not_of(" \t", marker_end);
   return start == std::string::npos ? std::string() : line.substr(start);
 }
 
+// Reads header lines (up to the line that starts with `last`) with the offset of the data after it.
 struct HeaderLines {
   std::vector<std::string> lines;
   std::uint64_t data_offset = 0;

@@ -60,12 +60,8 @@ int run_export(const std::vector<std::string>& argv) {
 #ifdef IWLOMAP_HAVE_OCTOMAP
     // .bt stores occupied / free by this threshold; the bar follows the blocks written.
     Progress bar("writing", 1, !quiet);
-    const std::string name = std::filesystem::path(*output).filename().string();
     files.write(*output, [&](const std::string& file) {
-      export_octomap(*map, file, threshold, [&](const ProgressReport& r) {
-        bar.update(r.total == 0 ? 1.0 : static_cast<double>(r.done) / static_cast<double>(r.total),
-                   name + ": " + progress_stage_name(r.stage));
-      });
+      export_octomap(*map, file, threshold, progress_within(bar, 0, std::filesystem::path(*output).filename().string()));
     });
 #else
     throw std::runtime_error("writing OctoMap files needs the OctoMap layer (build with -DIWLOMAP_WITH_OCTOMAP=ON)");

@@ -340,9 +340,7 @@ int run_map(const std::vector<std::string>& argv) {
     save_cloud(files.temporary(*output), occupied, *output, info);
   written_items += output ? 1 : 0;
   SnapshotMarks marks;  // each file's sensor position, joined in order
-  marks.sensor_positions.resize(static_cast<Eigen::Index>(integrated_poses.size()), 3);
-  for (std::size_t i = 0; i < integrated_poses.size(); ++i)
-    marks.sensor_positions.row(static_cast<Eigen::Index>(i)) = integrated_poses[i].translation().transpose();
+  marks.sensor_positions = positions_of(integrated_poses);
   written_items = write_map_outputs(extra, files, *setup.map, threshold, colors ? &*colors : nullptr,
                                     MapOutputsProgress{&writing, written_items}, marks);
   if (poses_out) {

@@ -11,6 +11,7 @@
 #include "cloud_io.h"
 #include "voxel_cloud.h"
 #include "map_open.h"
+#include "map_outputs.h"
 #include "output_files.h"
 
 #include <iwlomap/viewer/pcl_adapter.h>
@@ -156,12 +157,8 @@ viewer::SnapshotOptions options_from(const Args& args) {
   o.axes = !args.flag("--no-axes");
   o.scale_bar = !args.flag("--no-scale-bar");
   o.z_down = args.flag("--z-down");
-  if (const auto path = args.value("--trajectory")) {
-    const auto poses = read_trajectory(*path, extension(*path) == ".kitti" ? TrajectoryFormat::kKitti : TrajectoryFormat::kTum);
-    o.sensor_positions.resize(static_cast<Eigen::Index>(poses.size()), 3);
-    for (std::size_t i = 0; i < poses.size(); ++i)
-      o.sensor_positions.row(static_cast<Eigen::Index>(i)) = poses[i].translation().transpose();
-  }
+  if (const auto path = args.value("--trajectory"))
+    o.sensor_positions = positions_of(read_trajectory(*path, trajectory_format_of(*path)));
   try {
     o.validate();
   } catch (const std::invalid_argument& e) {

@@ -363,12 +363,9 @@ int run_sonar(const std::vector<std::string>& argv) {
   // The snapshot: the sonar's track; the map's z is depth when the sonar's +z (down in its own
   // frame) points along the map's +z on average.
   SnapshotMarks marks;
+  marks.sensor_positions = positions_of(integrated);
   double down = 0.0;
-  marks.sensor_positions.resize(static_cast<Eigen::Index>(integrated.size()), 3);
-  for (std::size_t i = 0; i < integrated.size(); ++i) {
-    marks.sensor_positions.row(static_cast<Eigen::Index>(i)) = integrated[i].translation().transpose();
-    down += integrated[i].linear()(2, 2);
-  }
+  for (const Eigen::Isometry3d& pose : integrated) down += pose.linear()(2, 2);
   marks.z_down = down > 0.0;
   write_map_outputs(extra, files, *setup.map, setup.params.occupied_threshold, nullptr, {}, marks);
   files.commit();

@@ -45,6 +45,13 @@ MapOutputs map_outputs_from(const Args& args, OutputFiles& files) {
   return out;
 }
 
+Eigen::MatrixXd positions_of(const std::vector<Eigen::Isometry3d>& poses) {
+  Eigen::MatrixXd positions(static_cast<Eigen::Index>(poses.size()), 3);
+  for (std::size_t i = 0; i < poses.size(); ++i)
+    positions.row(static_cast<Eigen::Index>(i)) = poses[i].translation().transpose();
+  return positions;
+}
+
 std::size_t map_outputs_count(const MapOutputs& outputs) {
   return static_cast<std::size_t>(outputs.octomap.has_value()) + static_cast<std::size_t>(outputs.snapshot.has_value());
 }
@@ -59,14 +66,10 @@ std::size_t write_map_outputs(const MapOutputs& outputs, const OutputFiles& file
 #ifdef IWLOMAP_HAVE_OCTOMAP
   if (outputs.octomap) {
     starting(*outputs.octomap);
-    const std::string name = std::filesystem::path(*outputs.octomap).filename().string();
-    ProgressCallback blocks;
-    if (progress.bar != nullptr)
-      blocks = [&progress, item, name](const ProgressReport& r) {
-        progress.bar->update(static_cast<double>(item) +
-                                 (r.total == 0 ? 1.0 : static_cast<double>(r.done) / static_cast<double>(r.total)),
-                             name + ": " + progress_stage_name(r.stage));
-      };
+    const ProgressCallback blocks =
+        progress.bar != nullptr
+            ? progress_within(*progress.bar, item, std::filesystem::path(*outputs.octomap).filename().string())
+            : ProgressCallback();
     files.write(*outputs.octomap, [&](const std::string& file) {
       export_octomap(map, file, map.get_params().occupied_threshold, blocks);
     });

@@ -9,10 +9,11 @@
 #include <iwlomap/mapper_backend.h>
 #include <iwlomap/voxel_colors.h>
 
-#include <Eigen/Core>
+#include <Eigen/Geometry>
 
 #include <optional>
 #include <string>
+#include <vector>
 
 namespace iwlomap::tool {
 
@@ -35,6 +36,9 @@ struct SnapshotMarks {
   Eigen::MatrixXd sensor_positions = Eigen::MatrixXd(0, 3);
   bool z_down = false;
 };
+
+/// The translations of \p poses, one row each (N x 3): sensor positions for a snapshot.
+[[nodiscard]] Eigen::MatrixXd positions_of(const std::vector<Eigen::Isometry3d>& poses);
 
 /// A bar that write_map_outputs() moves: each output is one item, from \p first_item on.
 struct MapOutputsProgress {

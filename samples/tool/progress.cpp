@@ -49,7 +49,9 @@ void Progress::update(double done, const std::string& note) {
 ProgressCallback progress_within(Progress& bar, std::size_t item, const std::string& name) {
   return [&bar, item, name](const ProgressReport& r) {
     const double part = r.total == 0 ? 1.0 : static_cast<double>(r.done) / static_cast<double>(r.total);
-    const double within = r.stage == ProgressStage::kCastingRays ? 0.5 * part : 0.5 + 0.5 * part;
+    const double within = r.stage == ProgressStage::kCastingRays      ? 0.5 * part
+                          : r.stage == ProgressStage::kUpdatingVoxels ? 0.5 + 0.5 * part
+                                                                      : part;
     bar.update(static_cast<double>(item) + std::min(within, 1.0), name + ": " + progress_stage_name(r.stage));
   };
 }

@@ -30,9 +30,10 @@ class Progress {
   std::string last_line_;  // not drawn again when unchanged
 };
 
-/// A callback for IMapperBackend::set_progress_callback() that moves \p bar within item \p item
-/// (the items before it done): the rays are the first half of the item, the voxel updates the
-/// second, and the note names the stage after \p name.
+/// A progress callback (IMapperBackend::set_progress_callback(), export_octomap()) that moves
+/// \p bar within item \p item (the items before it done): a scan's rays are the first half of the
+/// item and its voxel updates the second; any other stage is the whole item. The note names the
+/// stage after \p name.
 [[nodiscard]] ProgressCallback progress_within(Progress& bar, std::size_t item, const std::string& name);
 
 /// Shows \p text (cut to the terminal's width) in place on stderr when \p enabled and stderr is a

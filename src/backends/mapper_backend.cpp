@@ -191,10 +191,6 @@ std::optional<VoxelBox> known_voxel_box(const IMapperBackend& map) {
   return box;
 }
 
-}  // namespace iwlomap
-
-namespace iwlomap {
-
 const char* progress_stage_name(ProgressStage stage) noexcept {
   switch (stage) {
     case ProgressStage::kCastingRays:

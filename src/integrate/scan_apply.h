@@ -7,10 +7,12 @@
 // depend on the thread count either. Then the free voxels, then the hits; a voxel gets one
 // observation per scan (the scratch made sure of it), so the order between voxels is free.
 
+#include "integrate/progress_report.h"
 #include "integrate/scan_scratch.h"
 #include "storage/block_grid.h"
 #include "storage/memory_limit.h"
 
+#include <algorithm>
 #include <cstddef>
 
 namespace iwlomap::detail {
@@ -54,6 +56,19 @@ void apply_scan_free(const ScanScratch& s, const BlockGrid& grid, std::size_t be
     if (last == nullptr || last->key != block_key) last = grid.find(block_key);
     observe(*last, index, voxel_of(block_key, index), 0.0, false);
   });
+}
+
+/// apply_scan_free() over every chunk on this thread, reporting the chunks done to \p report
+/// every 64 chunks (up to 32^3 voxels each) when it is active, in one pass otherwise.
+template <class Observe>
+void apply_scan_free_reporting(const ScanScratch& s, const BlockGrid& grid, StageProgress& report, Observe&& observe) {
+  constexpr std::size_t kReportGrain = 64;
+  const std::size_t chunks = s.num_chunks();
+  const std::size_t step = report.active() ? kReportGrain : chunks;
+  for (std::size_t c = 0; c < chunks; c += step) {
+    apply_scan_free(s, grid, c, std::min(c + step, chunks), observe);
+    report.report(std::min(c + step, chunks));
+  }
 }
 
 /// The same for every hit voxel (its largest intensity, occupied).

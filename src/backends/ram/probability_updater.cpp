@@ -113,13 +113,7 @@ void apply_collected(Impl& m, const detail::ScanScratch& scratch, int threads, c
     };
   };
   if (t <= 1) {
-    // Between reports: 64 chunks of up to 32^3 voxels each.
-    constexpr std::size_t kReportGrain = 64;
-    const std::size_t step = report.active() ? kReportGrain : chunks;
-    for (std::size_t c = 0; c < chunks; c += step) {
-      detail::apply_scan_free(scratch, m.grid, c, std::min(c + step, chunks), observe(m.known));
-      report.report(std::min(c + step, chunks));
-    }
+    detail::apply_scan_free_reporting(scratch, m.grid, report, observe(m.known));
   } else {
     // Each thread updates the free voxels of its own ranges of scratch chunks. Chunks are
     // disjoint, so are their blocks: no two threads touch one voxel, and the per-voxel results
