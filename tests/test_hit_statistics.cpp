@@ -7,6 +7,7 @@
 #include "iwlomap/map_entropy.h"
 #include "iwlomap/outofcore_tile_mapper.h"
 #include "iwlomap/probability_updater.h"
+#include "iwlomap/ray_caster.h"
 
 #include "storage/block_grid.h"
 
@@ -16,9 +17,11 @@
 #include <cstdio>
 #include <filesystem>
 #include <limits>
+#include <map>
 #include <random>
 #include <stdexcept>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include <unistd.h>
@@ -174,6 +177,71 @@ TEST(HitAccumulation, InsertScanCountsEveryRayAsGMappingCountsBeams) {
   EXPECT_EQ(map.hit_statistics(centre(5, 0, 0))->visits, 6u);
   EXPECT_EQ(map.hit_statistics(centre(0, 0, 0))->visits, 10u);
   EXPECT_DOUBLE_EQ(map.hit_statistics(centre(5, 0, 0))->entropy, kEntropyOneThird);
+}
+
+// The statistics are gathered in the scan's own ray walk; with threads the walk is split, and the
+// counts and mean positions must still be those of the rays taken one by one in order.
+TEST(HitAccumulation, ScanStatisticsMatchRaysCastOneByOneForAnyThreadCountAndBackend) {
+  constexpr double kRes = 0.05;
+  std::mt19937 rng(23u);
+  std::uniform_real_distribution<double> c(-3.0, 3.0);
+  Eigen::MatrixXd p(12000, 3);  // enough rays for the walk to take two threads
+  for (Eigen::Index i = 0; i < p.rows(); ++i) p.row(i) << c(rng), c(rng), 0.5 * c(rng);
+  Eigen::VectorXd in(p.rows());
+  for (Eigen::Index i = 0; i < p.rows(); ++i) in[i] = i % 5 == 0 ? 10.0 : 200.0;  // a fifth below the threshold
+  const Eigen::Vector3d origin(0.01, -0.02, 0.03);
+  const double threshold = ProbabilityUpdater(kRes).get_params().intensity_threshold;
+
+  // The reference: each ray cast on its own, in order; its end a hit or a visit.
+  struct Ref {
+    std::uint32_t hits = 0, visits = 0;
+    Eigen::Vector3d offsets = Eigen::Vector3d::Zero();
+  };
+  std::map<std::tuple<int, int, int>, Ref> ref;
+  for (Eigen::Index i = 0; i < p.rows(); ++i) {
+    const Eigen::Vector3d q = p.row(i).transpose();
+    cast_ray(origin, q, kRes, [&](const VoxelKey& k) { ++ref[{k.x, k.y, k.z}].visits; });
+    const VoxelKey k = world_to_key(q, kRes);
+    Ref& r = ref[{k.x, k.y, k.z}];
+    ++r.visits;
+    if (in[i] > threshold) {
+      ++r.hits;
+      r.offsets += q - key_to_center(k, kRes);
+    }
+  }
+
+  test_support::TempDir dir;
+  ProbabilityUpdater one(kRes), two(kRes);
+  OutofcoreTileMapper disk(dir.sub("map"), kRes, 0.8, 4);  // 16-voxel tiles, 4 resident
+  two.set_num_threads(2);
+  disk.set_num_threads(2);
+  for (IMapperBackend* m : {static_cast<IMapperBackend*>(&one), static_cast<IMapperBackend*>(&two),
+                            static_cast<IMapperBackend*>(&disk)}) {
+    m->set_hit_accumulation(true);
+    m->insert_scan(origin, p, in);
+  }
+  std::size_t checked = 0;
+  for (const auto& [xyz, r] : ref) {
+    const Eigen::Vector3d at = key_to_center({std::get<0>(xyz), std::get<1>(xyz), std::get<2>(xyz)}, kRes);
+    const auto s1 = one.hit_statistics(at);
+    ASSERT_TRUE(s1.has_value());
+    ASSERT_EQ(s1->visits, r.visits);
+    ASSERT_EQ(s1->hits, r.hits);
+    if (r.hits > 0) {
+      const Eigen::Vector3d mean = at + r.offsets / static_cast<double>(r.hits);
+      ASSERT_NEAR((s1->mean_hit_position - mean).norm(), 0.0, 1e-12);
+    }
+    for (const IMapperBackend* m : {static_cast<const IMapperBackend*>(&two), static_cast<const IMapperBackend*>(&disk)}) {
+      const auto s = m->hit_statistics(at);
+      ASSERT_TRUE(s.has_value());
+      ASSERT_EQ(s->visits, s1->visits);
+      ASSERT_EQ(s->hits, s1->hits);
+      ASSERT_EQ(s->mean_hit_position, s1->mean_hit_position);  // bit for bit
+    }
+    ++checked;
+  }
+  EXPECT_GT(checked, 100000u);
+  EXPECT_GT(disk.get_num_tiles(), 4u);  // several tile groups
 }
 
 TEST(HitAccumulation, BatchCountsOccupiedObservationsAsHitsAndAllAsVisits) {

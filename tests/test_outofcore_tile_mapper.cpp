@@ -11,6 +11,9 @@
 
 #include "tile_test_inputs.h"
 
+#include "integrate/batch_input.h"
+#include "integrate/block_sorted_batch.h"
+
 #include <gtest/gtest.h>
 
 #include <fcntl.h>
@@ -206,6 +209,31 @@ TEST(OutofcoreTileMapper, MatchesRamWhenScansCastOnSeveralThreads) {
     disk.insert_scan(scan.origin, scan.points, scan.intensities, 9.0);
     ram.insert_scan(scan.origin, scan.points, scan.intensities, 9.0);
   }
+  expect_same_map(disk, ram);
+}
+
+// Scattered batches whose tiles fit in the cache are regrouped by block (block_sorted_batch.h),
+// as the RAM backend regroups them; with or without weights the maps stay equal.
+TEST(OutofcoreTileMapper, MatchesRamWhenScatteredBatchesAreRegroupedByBlock) {
+  const TempDir tmp;
+  ProbabilityUpdater ram(0.1);
+  OutofcoreTileMapper disk(tmp.sub("map"), 0.1, 3.2, 1024);  // 32-voxel tiles, all resident
+  std::mt19937 rng(404u);
+  for (int b = 0; b < 3; ++b) {
+    const Batch batch = random_batch(rng, 40000, 12.0);
+    // The batch is one the regrouping takes (the same test as the backends').
+    std::size_t bad = 0;
+    for (Eigen::Index i = 0; i < batch.points.rows(); ++i) bad += batch.points.row(i).allFinite() ? 0 : 1;
+    ASSERT_TRUE(detail::BlockSortedBatch::suits(batch.points, batch.intensities, bad, detail::FloorDivider(0.1)));
+    if (b == 1) {
+      disk.batch_update_iwlo(batch.points, batch.intensities, batch.flags, batch.weights);
+      ram.batch_update_iwlo(batch.points, batch.intensities, batch.flags, batch.weights);
+    } else {
+      disk.batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+      ram.batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+    }
+  }
+  EXPECT_GT(disk.get_num_tiles(), 300u);
   expect_same_map(disk, ram);
 }
 

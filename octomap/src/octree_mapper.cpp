@@ -329,8 +329,10 @@ void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::Matri
   Impl& m = impl();
   detail::check_scan_input(origin, points, intensities, max_range, m.resolution);
   // Rays may be cast on several threads (bit-identical); the octree is then updated on this one.
+  const detail::RayStatistics ray_stats{m.updater.params().intensity_threshold};
+  const detail::RayStatistics* stats = m.hits.enabled() ? &ray_stats : nullptr;
   const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, get_num_threads(),
-                                             &get_progress_callback());
+                                             &get_progress_callback(), stats);
   // Every voxel the scan would update must have an OctoMap key; checked before anything changes.
   m.scratch.for_each_observation(
       [&](const VoxelKey& block_key, int index) {
@@ -342,21 +344,23 @@ void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::Matri
         if (!in_octomap_range(key)) throw_outside_octomap("a point of the scan", key, m.resolution);
       });
   // The exact state as the RAM backend lays it out (the same iteration order), mirrored.
-  detail::allocate_scan(m.scratch, m.grid);
-  const auto observe = [&m](detail::VoxelBlock& b, int index, const VoxelKey& key, double intensity, bool occupied) {
-    m.observe(b, index, key, intensity, occupied, 1.0);
-  };
+  detail::OneGrid locate(m.grid);
+  detail::allocate_scan(m.scratch, m.grid, locate);
   // The octree update is on this thread (an exception of the progress callback is rethrown once
   // the scan is applied in full).
   std::exception_ptr deferred;
   detail::StageProgress report(&get_progress_callback(), ProgressStage::kUpdatingVoxels, m.scratch.num_chunks() + 1,
                                &deferred);
-  detail::apply_scan_free_reporting(m.scratch, m.grid, report, observe);
-  detail::apply_scan_hits(m.scratch, m.grid, observe);
-  report.finish();
+  (void)detail::apply_scan(
+      m.scratch, {}, 1, locate,
+      [&m](detail::VoxelBlock& b, int index, const VoxelKey& key, double intensity, bool occupied) {
+        m.observe(b, index, key, intensity, occupied, 1.0);
+        return false;  // m.observe() counts the map's known voxels itself
+      },
+      report);
   m.skipped += skip;
   m.tree_changed();
-  m.hits.add_scan(origin, points, intensities, max_range, m.updater.params().intensity_threshold);
+  m.hits.add_scan(m.scratch.statistics());
   if (deferred) std::rethrow_exception(deferred);
 }
 

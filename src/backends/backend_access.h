@@ -50,10 +50,10 @@ class KnownBlockGrouper {
 struct BackendAccess {
   /// Applies a scan already collected into \p scratch (at most one observation per voxel) to
   /// \p map, so that its voxels come out bit-identical to \p map's own insert_scan() of that scan;
-  /// the skipped-point count is the caller's. A RAM backend applies it through its own scan path
-  /// (throwing std::logic_error when it gathers hit statistics, which need the points, and
-  /// MemoryLimitError as insert_scan() does, before changing the map); any other backend gets
-  /// apply_scratch_by_batches().
+  /// the skipped-point count is the caller's. The RAM and Disk backends apply it through their own
+  /// scan path (throwing std::logic_error, before changing the map, when they gather hit
+  /// statistics and the scratch holds none; RAM also MemoryLimitError as insert_scan() does); any
+  /// other backend gets apply_scratch_by_batches().
   static void apply_collected_scan(IMapperBackend& map, const ScanScratch& scratch);
 
   /// Some known voxels of one 8^3 block: block_of() key, then n voxels by index_in_block() with
@@ -70,6 +70,7 @@ struct BackendAccess {
 
  private:
   static void apply_to_ram(ProbabilityUpdater& map, const ScanScratch& scratch);
+  static void apply_to_disk(OutofcoreTileMapper& map, const ScanScratch& scratch);
   static void for_each_known_block_ram(const ProbabilityUpdater& map, const KnownBlockVisit& visit);
   static void for_each_known_block_disk(const OutofcoreTileMapper& map, const KnownBlockVisit& visit);
 };

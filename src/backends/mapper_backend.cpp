@@ -81,6 +81,8 @@ void detail::apply_scratch_by_batches(IMapperBackend& map, const ScanScratch& sc
 void detail::BackendAccess::apply_collected_scan(IMapperBackend& map, const ScanScratch& scratch) {
   if (auto* ram = dynamic_cast<ProbabilityUpdater*>(&map))
     apply_to_ram(*ram, scratch);
+  else if (auto* disk = dynamic_cast<OutofcoreTileMapper*>(&map))
+    apply_to_disk(*disk, scratch);
   else
     apply_scratch_by_batches(map, scratch);
 }

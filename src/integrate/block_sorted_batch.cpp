@@ -1,7 +1,6 @@
 // SPDX-License-Identifier: BSD-3-Clause
 #include "integrate/block_sorted_batch.h"
 
-#include "integrate/voxel_update.h"
 #include "storage/flat_key_map.h"
 
 #include <algorithm>
@@ -99,21 +98,6 @@ bool BlockSortedBatch::build(const Eigen::MatrixXd& points, const Eigen::VectorX
     e.occupied_flag = is_occupied[row] ? 1 : 0;
   }
   return true;
-}
-
-void apply_block_sorted(const BlockSortedBatch& batch, BlockGrid& grid, const BatchValues& in, const Updater& u,
-                        std::size_t& known) {
-  for (std::size_t s = 0; s < batch.blocks(); ++s) {
-    VoxelBlock& b = grid.get_or_create(batch.block(s));
-    const BlockSortedBatch::Entry* const from = batch.first(s);
-    const BlockSortedBatch::Entry* const to = batch.first(s + 1);
-    CellMask cells;
-    for (const auto* e = from; e != to; ++e) cells |= CellMask::of(e->index >> kCellShift);
-    grid.ensure_cells(b, cells);
-    for (const auto* e = from; e != to; ++e)
-      if (observe_voxel(b, b.existing(e->index), e->intensity, e->occupied_flag != 0, in.weight(e->row), u))
-        ++known;
-  }
 }
 
 }  // namespace iwlomap::detail

@@ -19,6 +19,7 @@
 
 #include "integrate/batch_input.h"
 #include "integrate/updater.h"
+#include "integrate/voxel_update.h"
 #include "storage/block_grid.h"
 
 #include <Eigen/Core>
@@ -71,11 +72,27 @@ class BlockSortedBatch {
   std::vector<Entry> entries_;
 };
 
-/// Applies a batch sorted by build() to \p grid, block after block, adding the voxels that
-/// became known to \p known. Only a block's creation and its cells' allocation can fail
-/// (std::bad_alloc, MemoryLimitError): the blocks before it stay applied, counted in \p known,
-/// and the map stays consistent.
-void apply_block_sorted(const BlockSortedBatch& batch, BlockGrid& grid, const BatchValues& in, const Updater& u,
-                        std::size_t& known);
+/// Applies a batch sorted by build() block after block, adding the voxels that became known to
+/// \p known. Where a block lives is the caller's policy, as for apply_batch():
+///   VoxelBlock& block(const VoxelKey& block_key): found or created (may throw)
+///   BlockGrid& grid(const VoxelKey& block_key): the grid that holds it
+/// (RAM: one grid; Disk: the resident tile of the block). Only a block's creation and its cells'
+/// allocation can fail (std::bad_alloc, MemoryLimitError): the blocks before it stay applied,
+/// counted in \p known, and the map stays consistent.
+template <class Locate>
+void apply_block_sorted(const BlockSortedBatch& batch, Locate&& locate, const BatchValues& in, const Updater& u,
+                        std::size_t& known) {
+  for (std::size_t s = 0; s < batch.blocks(); ++s) {
+    const VoxelKey& key = batch.block(s);
+    VoxelBlock& b = locate.block(key);
+    const BlockSortedBatch::Entry* const from = batch.first(s);
+    const BlockSortedBatch::Entry* const to = batch.first(s + 1);
+    CellMask cells;
+    for (const auto* e = from; e != to; ++e) cells |= CellMask::of(e->index >> kCellShift);
+    locate.grid(key).ensure_cells(b, cells);
+    for (const auto* e = from; e != to; ++e)
+      if (observe_voxel(b, b.existing(e->index), e->intensity, e->occupied_flag != 0, in.weight(e->row), u)) ++known;
+  }
+}
 
 }  // namespace iwlomap::detail

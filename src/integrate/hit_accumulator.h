@@ -9,16 +9,14 @@
 // origin still give a mean to well under a micrometre) and two saturating 32-bit counters.
 //
 // Every backend accumulates a scan the same way, so that their statistics agree bit for bit: the
-// scan's rays go into an accumulator of their own (ray order), which is then merged into the
-// map's (merge()), block by block; a batch adds its rows in call order.
+// scan's ray walk (ScanScratch::collect(), RayStatistics) fills an accumulator of its own, which
+// is then merged into the map's (merge()), block by block; a batch adds its rows in call order.
 
-#include "integrate/scan_ray.h"
 #include "model/checks.h"
 #include "storage/block_grid.h"
 #include "storage/flat_key_map.h"
 #include "storage/grid_reads.h"
 #include "iwlomap/hit_statistics.h"
-#include "iwlomap/ray_caster.h"
 #include "iwlomap/voxel_key.h"
 
 #include <Eigen/Core>
@@ -42,6 +40,110 @@ struct HitCell {
   std::uint32_t visits = 0;
 };
 static_assert(sizeof(HitCell) == 32, "a hit cell is 32 bytes");
+
+/// The hit statistics of one scan before they join a map's (HitAccumulator::merge()), gathered
+/// by the scan's ray walk (ScanScratch::collect()): visit counts in 8^3 blocks of 32-bit counters
+/// (2 KiB a block, an eighth of a HitAccumulator block: a ray step writes 4 bytes, not a 32-byte
+/// cell), and each hit voxel's hit count and sum of offsets, added in ray order. Its buffers are
+/// kept between scans.
+class ScanHits {
+ public:
+  using Counts = std::array<std::uint32_t, kBlockVoxels>;  // index_in_block() order
+  struct HitSum {
+    std::array<double, 3> offset_sum{};  // sum over hits of (hit - voxel centre), metres
+    std::uint32_t hits = 0;
+  };
+
+  /// Empties the statistics (keeping the buffers) for a scan at \p resolution.
+  void reset(double resolution) {
+    resolution_ = resolution;
+    blocks_ = 0;
+    block_index_.clear_keep_capacity();
+    hit_index_.clear_keep_capacity();
+    hit_keys_.clear();
+    hits_.clear();
+    last_ = nullptr;
+  }
+
+  void add_visit(const VoxelKey& k) {
+    std::uint32_t& c = counts(block_of(k))[static_cast<std::size_t>(index_in_block(k))];
+    c = saturating_add(c, 1);
+  }
+  /// A visit, and a hit at \p point.
+  void add_hit(const VoxelKey& k, const Eigen::Vector3d& point) {
+    add_visit(k);
+    const auto next = static_cast<std::uint32_t>(hits_.size());
+    const std::uint32_t i = hit_index_.insert(k, next);
+    if (i == next) {
+      hits_.emplace_back();
+      hit_keys_.push_back(k);
+    }
+    HitSum& h = hits_[i];
+    if (h.hits == std::numeric_limits<std::uint32_t>::max()) return;
+    ++h.hits;
+    const Eigen::Vector3d d = point - key_to_center(k, resolution_);
+    for (int a = 0; a < 3; ++a) h.offset_sum[static_cast<std::size_t>(a)] += d[a];
+  }
+  /// Adds \p other's visit counts (a thread's walk; its hits are not taken).
+  void add_visits(const ScanHits& other) {
+    other.for_each_block([this](const VoxelKey& b, const Counts& from) {
+      Counts& to = counts(b);
+      for (std::size_t i = 0; i < to.size(); ++i) to[i] = saturating_add(to[i], from[i]);
+    });
+  }
+
+  /// Calls fn(block_key, const Counts&) for every block with a visit.
+  template <class Fn>
+  void for_each_block(Fn&& fn) const {
+    for (std::size_t i = 0; i < blocks_; ++i) fn(block_keys_[i], counts_[i]);
+  }
+  /// Calls fn(voxel key, const HitSum&) for every voxel with a hit, in the order of its first hit.
+  template <class Fn>
+  void for_each_hit(Fn&& fn) const {
+    for (std::size_t i = 0; i < hits_.size(); ++i) fn(hit_keys_[i], hits_[i]);
+  }
+
+  [[nodiscard]] std::size_t bytes() const noexcept {
+    return counts_.capacity() * sizeof(Counts) + block_keys_.capacity() * sizeof(VoxelKey) + block_index_.bytes() +
+           hit_index_.bytes() + hit_keys_.capacity() * sizeof(VoxelKey) + hits_.capacity() * sizeof(HitSum);
+  }
+
+  static std::uint32_t saturating_add(std::uint32_t v, std::uint32_t d) noexcept {
+    return v > std::numeric_limits<std::uint32_t>::max() - d ? std::numeric_limits<std::uint32_t>::max() : v + d;
+  }
+
+ private:
+  Counts& counts(const VoxelKey& b) {
+    if (last_ != nullptr && last_key_ == b) return *last_;
+    const auto next = static_cast<std::uint32_t>(blocks_);
+    const std::uint32_t i = block_index_.insert(b, next);
+    if (i == next) {
+      // Blocks past blocks_ are kept from earlier scans and zeroed on reuse.
+      if (blocks_ == counts_.size()) {
+        counts_.emplace_back();
+        block_keys_.push_back(b);
+      } else {
+        counts_[blocks_].fill(0);
+        block_keys_[blocks_] = b;
+      }
+      ++blocks_;
+    }
+    last_ = &counts_[i];
+    last_key_ = b;
+    return *last_;
+  }
+
+  double resolution_ = 1.0;
+  std::vector<Counts> counts_;
+  std::vector<VoxelKey> block_keys_;
+  std::size_t blocks_ = 0;  // of counts_ in use
+  FlatKeyMap block_index_;
+  FlatKeyMap hit_index_;
+  std::vector<VoxelKey> hit_keys_;
+  std::vector<HitSum> hits_;
+  Counts* last_ = nullptr;
+  VoxelKey last_key_{};
+};
 
 class HitAccumulator {
  public:
@@ -91,29 +193,6 @@ class HitAccumulator {
     for (Eigen::Index i = 0; i < points.rows(); ++i) add_row(points, intensities, is_occupied, i, intensity_threshold);
   }
 
-  /// The statistics of a scan the map has applied, per ray as GMapping counts beams (see
-  /// hit_statistics.h), into this accumulator (a scan's own, merged into the map's afterwards).
-  /// The rays are cast again because the scan scratch merges them per voxel; their ends come
-  /// from scan_ray_end(), as the scratch's do, so the voxels are the same.
-  void add_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
-                double max_range, double intensity_threshold) {
-    const double longest = kMaxRayVoxels * resolution_;
-    const auto visit = [this](const VoxelKey& k) { add_visit(k); };
-    for (Eigen::Index i = 0; i < points.rows(); ++i) {
-      const Eigen::Vector3d p = points.row(i).transpose();
-      const double intensity = intensities[i];
-      if (!p.allFinite() || !std::isfinite(intensity)) continue;
-      const ScanRayEnd ray = scan_ray_end(origin, p, max_range, longest);
-      if (!ray.cast) continue;
-      cast_ray(origin, ray.end, resolution_, visit);
-      if (ray.clipped) continue;
-      if (intensity > intensity_threshold)
-        add_hit(world_to_key(p, resolution_), p);
-      else
-        add_visit(world_to_key(p, resolution_));
-    }
-  }
-
   /// Calls fn(block_key, const Block&) for every block, in the order they were first touched.
   template <class Fn>
   void for_each_block(Fn&& fn) const {
@@ -140,6 +219,28 @@ class HitAccumulator {
   /// merge() of every block of \p from.
   void merge(const HitAccumulator& from) {
     from.for_each_block([this](const VoxelKey& b, const Block& cells) { merge(b, cells); });
+  }
+
+  /// Adds a scan's visit counts of block \p block_key (saturating).
+  void merge_visits(const VoxelKey& block_key, const ScanHits::Counts& from) {
+    Block& to = block(block_key);
+    for (std::size_t i = 0; i < from.size(); ++i)
+      if (from[i] != 0) to.cells[i].visits = saturating_add(to.cells[i].visits, from[i]);
+  }
+  /// Adds a scan's hits of voxel \p k, by the rules of merge().
+  void merge_hits(const VoxelKey& k, const ScanHits::HitSum& from) {
+    HitCell& t = cell(k);
+    if (from.hits > std::numeric_limits<std::uint32_t>::max() - t.hits) {
+      t.hits = std::numeric_limits<std::uint32_t>::max();
+      return;
+    }
+    t.hits += from.hits;
+    for (std::size_t a = 0; a < 3; ++a) t.offset_sum[a] += from.offset_sum[a];
+  }
+  /// Adds every statistic of a scan.
+  void merge(const ScanHits& scan) {
+    scan.for_each_block([this](const VoxelKey& b, const ScanHits::Counts& c) { merge_visits(b, c); });
+    scan.for_each_hit([this](const VoxelKey& k, const ScanHits::HitSum& h) { merge_hits(k, h); });
   }
 
   [[nodiscard]] const HitCell* find(const VoxelKey& k) const noexcept {
@@ -184,7 +285,7 @@ class HitAccumulator {
 
  private:
   static std::uint32_t saturating_add(std::uint32_t v, std::uint32_t d) noexcept {
-    return v > std::numeric_limits<std::uint32_t>::max() - d ? std::numeric_limits<std::uint32_t>::max() : v + d;
+    return ScanHits::saturating_add(v, d);
   }
 
   [[nodiscard]] Eigen::Vector3d mean_position(const VoxelKey& k, const HitCell& c) const {
@@ -246,12 +347,9 @@ class HitStatisticsOf {
                  double intensity_threshold) {
     if (hits_) hits_->add_batch(points, intensities, is_occupied, intensity_threshold);
   }
-  void add_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
-                double max_range, double intensity_threshold) {
-    if (!hits_) return;
-    HitAccumulator scan(resolution_);
-    scan.add_scan(origin, points, intensities, max_range, intensity_threshold);
-    hits_->merge(scan);
+  /// Adds a scan's statistics (ScanScratch::statistics(); nothing for null).
+  void add_scan(const ScanHits* scan) {
+    if (hits_ && scan != nullptr) hits_->merge(*scan);
   }
   void clear() {
     if (hits_) hits_->clear();

@@ -51,14 +51,18 @@ void ScanScratch::clear() {
   hits_.clear();
   hit_index_.clear_keep_capacity();
   last_ = -1;
+  has_statistics_ = false;
 }
 
 // cast_ray()'s walk (the same set-up and the same comparisons, so the same voxels), with the
 // bookkeeping of a voxel's bit done incrementally: a step moves one axis's coordinate inside the
 // chunk and looks up that axis's part of the bit index; only a step out of the chunk (about one in
 // 30) looks the next chunk up. A per-voxel mark that recomputed the chunk key and the bit index
-// from the key cost about twice as much per step.
-void ScanScratch::mark_ray(const Eigen::Vector3d& origin, const Eigen::Vector3d& end, double resolution) {
+// from the key cost about twice as much per step. \p visit gets each voxel's key (the walk of a
+// scan without hit statistics passes a lambda that does nothing, and compiles to the bare walk).
+template <class Visit>
+void ScanScratch::mark_ray(const Eigen::Vector3d& origin, const Eigen::Vector3d& end, double resolution,
+                           Visit&& visit) {
   static constexpr AxisBits kAxisBits = axis_bits();
   const RayWalk w = start_ray_walk(origin, end, resolution);
   if (w.total == 0) return;
@@ -74,6 +78,7 @@ void ScanScratch::mark_ray(const Eigen::Vector3d& origin, const Eigen::Vector3d&
   for (std::int64_t s = 0;;) {
     const unsigned bit = bx | by | bz;
     words[bit >> 6] |= std::uint64_t{1} << (bit & 63);
+    visit(VoxelKey{ck.x * (1 << kChunkShift) + lx, ck.y * (1 << kChunkShift) + ly, ck.z * (1 << kChunkShift) + lz});
     if (++s == w.total) break;
     if (tx <= ty && tx <= tz) {
       tx = --nx == 0 ? kInf : tx + w.dt[0];
@@ -108,7 +113,8 @@ void ScanScratch::mark_ray(const Eigen::Vector3d& origin, const Eigen::Vector3d&
 
 std::size_t ScanScratch::collect_range(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                        const Eigen::VectorXd& intensities, double max_range, double resolution,
-                                       Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad) {
+                                       Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad,
+                                       bool visits) {
   const double longest = kMaxRayVoxels * resolution;
   std::size_t skipped = 0;
   for (Eigen::Index i = begin; i < end; ++i) {
@@ -128,7 +134,10 @@ std::size_t ScanScratch::collect_range(const Eigen::Vector3d& origin, const Eige
       *first_bad = std::min(*first_bad, i);
       continue;
     }
-    mark_ray(origin, ray.end, resolution);
+    if (!visits)
+      mark_ray(origin, ray.end, resolution, [](const VoxelKey&) {});
+    else
+      mark_ray(origin, ray.end, resolution, [this](const VoxelKey& k) { ray_hits_.add_visit(k); });
     if (!ray.clipped) add_hit(world_to_key(p, resolution), intensity);
   }
   return skipped;
@@ -147,8 +156,41 @@ void ScanScratch::merge(const ScanScratch& other) {
 
 std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                  const Eigen::VectorXd& intensities, double max_range, double resolution,
-                                 int threads, const ProgressCallback* progress) {
+                                 int threads, const ProgressCallback* progress, const RayStatistics* stats) {
   clear();
+  if (stats != nullptr) ray_hits_.reset(resolution);
+  const std::size_t skipped =
+      cast_rays(origin, points, intensities, max_range, resolution, threads, progress, stats != nullptr);
+  if (stats != nullptr) {
+    add_ray_ends(origin, points, intensities, max_range, resolution, *stats);
+    has_statistics_ = true;
+  }
+  return skipped;
+}
+
+// The ends of the rays that collect() cast, in ray order: a hit when the intensity is above the
+// threshold, a visit otherwise; a ray clipped at max_range or kMaxRayVoxels ends in no voxel.
+void ScanScratch::add_ray_ends(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                               const Eigen::VectorXd& intensities, double max_range, double resolution,
+                               const RayStatistics& stats) {
+  const double longest = kMaxRayVoxels * resolution;
+  for (Eigen::Index i = 0; i < points.rows(); ++i) {
+    const Eigen::Vector3d p = points.row(i).transpose();
+    const double intensity = intensities[i];
+    if (!p.allFinite() || !std::isfinite(intensity)) continue;
+    const ScanRayEnd ray = scan_ray_end(origin, p, max_range, longest);
+    if (!ray.cast || ray.clipped) continue;
+    const VoxelKey k = world_to_key(p, resolution);
+    if (intensity > stats.intensity_threshold)
+      ray_hits_.add_hit(k, p);
+    else
+      ray_hits_.add_visit(k);
+  }
+}
+
+std::size_t ScanScratch::cast_rays(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                                   const Eigen::VectorXd& intensities, double max_range, double resolution,
+                                   int threads, const ProgressCallback* progress, bool visits) {
   const Eigen::Index n = points.rows();
   StageProgress report(progress, ProgressStage::kCastingRays, static_cast<std::size_t>(n));
   // Below a few thousand rays a thread costs more than it saves.
@@ -157,11 +199,12 @@ std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::Mat
   // Rays go in blocks between reports; a block of 4,096 rays takes about a millisecond.
   constexpr Eigen::Index kReportGrain = 4096;
   if (t == 1) {
-    if (!report.active()) return collect_range(origin, points, intensities, max_range, resolution, 0, n, nullptr);
+    if (!report.active())
+      return collect_range(origin, points, intensities, max_range, resolution, 0, n, nullptr, visits);
     std::size_t skipped = 0;
     for (Eigen::Index b = 0; b < n; b += kReportGrain) {
       skipped += collect_range(origin, points, intensities, max_range, resolution, b, std::min(b + kReportGrain, n),
-                               nullptr);
+                               nullptr, visits);
       report.report(static_cast<std::size_t>(std::min(b + kReportGrain, n)));
     }
     report.finish();
@@ -177,6 +220,7 @@ std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::Mat
   std::atomic<Eigen::Index> next{0};
   std::atomic<Eigen::Index> finished{0};  // rays cast, for the reports of the calling thread
   helpers_.resize(static_cast<std::size_t>(t - 1));
+
   std::vector<std::size_t> skipped(static_cast<std::size_t>(t), 0);
   std::vector<Eigen::Index> first_bad(static_cast<std::size_t>(t), n);
   // A thread that cannot get memory (the map memory limit, std::bad_alloc) stops the others and
@@ -186,7 +230,7 @@ std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::Mat
     try {
       for (Eigen::Index b = next.fetch_add(kGrain); b < n; b = next.fetch_add(kGrain)) {
         skipped[k] += into.collect_range(origin, points, intensities, max_range, resolution, b,
-                                         std::min(b + kGrain, n), &first_bad[k]);
+                                         std::min(b + kGrain, n), &first_bad[k], visits);
         const Eigen::Index cast = finished.fetch_add(std::min(b + kGrain, n) - b, std::memory_order_relaxed) +
                                   std::min(b + kGrain, n) - b;
         if (k == 0) report.report(static_cast<std::size_t>(cast));  // the calling thread only
@@ -202,6 +246,7 @@ std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::Mat
     const auto idx = static_cast<std::size_t>(k);
     workers.emplace_back([&, idx] {
       helpers_[idx - 1].clear();
+      if (visits) helpers_[idx - 1].ray_hits_.reset(resolution);  // each counts its own visits
       work(helpers_[idx - 1], idx);
     });
   }
@@ -216,6 +261,8 @@ std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::Mat
     merge(helpers_[static_cast<std::size_t>(k - 1)]);
     total += skipped[static_cast<std::size_t>(k)];
   }
+  if (visits)  // counts: the same sums in any order
+    for (const ScanScratch& h : helpers_) ray_hits_.add_visits(h.ray_hits_);
   report.finish();
   return total;
 }
@@ -224,7 +271,7 @@ std::size_t ScanScratch::bytes() const noexcept {
   std::size_t b = chunks_.capacity() * sizeof(Chunk) + hits_.capacity() * sizeof(Hit) + chunk_index_.bytes() +
                   hit_index_.bytes() + helpers_.capacity() * sizeof(ScanScratch);
   for (const ScanScratch& h : helpers_) b += h.bytes();
-  return b;
+  return b + ray_hits_.bytes();
 }
 
 void ScanScratch::release() {
@@ -234,6 +281,8 @@ void ScanScratch::release() {
   hit_index_.reset();
   last_ = -1;
   free_memory(helpers_);
+  ray_hits_ = ScanHits();
+  has_statistics_ = false;
 }
 
 }  // namespace iwlomap::detail

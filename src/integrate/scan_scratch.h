@@ -10,6 +10,7 @@
 // does not depend on the order of the rays, which is what lets rays be cast in any order or on
 // several threads and still give bit-identical maps.
 
+#include "integrate/hit_accumulator.h"
 #include "storage/block_grid.h"
 #include "storage/flat_key_map.h"
 #include "iwlomap/progress.h"
@@ -25,6 +26,16 @@
 #include <vector>
 
 namespace iwlomap::detail {
+
+/// A scan's hit statistics, gathered by ScanScratch::collect() in its own ray walk (ScanHits):
+/// each voxel a ray crosses gets a visit, and the voxel of the ray's end a hit (intensity above
+/// \p intensity_threshold) or a visit, per ray as GMapping counts beams (hit_statistics.h).
+/// Visits are counts, so the threads' walks add up in any order; the hits, whose positions are
+/// summed in floating point, are added on the calling thread in ray order. The result is the
+/// same for any thread count.
+struct RayStatistics {
+  double intensity_threshold;
+};
 
 class ScanScratch {
  public:
@@ -50,10 +61,11 @@ class ScanScratch {
   /// intensities): the observations are bit-identical to threads = 1. An out-of-range point
   /// throws the error of the lowest such index, as in one thread. With \p progress, reports
   /// ProgressStage::kCastingRays (points walked) from the calling thread; an exception of the
-  /// callback ends the collection (the map is untouched, as above).
+  /// callback ends the collection (the map is untouched, as above). With \p stats, also gathers
+  /// the scan's hit statistics (RayStatistics).
   std::size_t collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                       const Eigen::VectorXd& intensities, double max_range, double resolution, int threads = 1,
-                      const ProgressCallback* progress = nullptr);
+                      const ProgressCallback* progress = nullptr, const RayStatistics* stats = nullptr);
 
   /// Calls fn(block_key, cells) for every grid block (8^3) that holds an observation, free or
   /// hit, with \p cells (a CellMask) holding each cell of the block (see index_in_block()) that
@@ -122,6 +134,8 @@ class ScanScratch {
   void add_hit(const VoxelKey& k, double intensity);
 
   [[nodiscard]] std::size_t num_chunks() const noexcept { return chunks_.size(); }
+  /// The hit statistics of the last collect() that was asked for them (RayStatistics), else null.
+  [[nodiscard]] const ScanHits* statistics() const noexcept { return has_statistics_ ? &ray_hits_ : nullptr; }
   [[nodiscard]] const std::vector<Hit>& hits() const noexcept { return hits_; }
 
   /// Calls free_fn(block_key, index_in_block) once per free voxel that holds no hit, grouped by
@@ -150,12 +164,19 @@ class ScanScratch {
             c.key.z * kBlocksPerChunkEdge + (b >> 4)};
   }
   void clear();
-  // Casts rays [begin, end). An out-of-range point throws, or with \p first_bad is recorded there
-  // (the lowest index) and skipped.
+  // Casts rays [begin, end), counting a visit in ray_hits_ for every voxel a ray crosses when
+  // \p visits. An out-of-range point throws, or with \p first_bad is recorded there (the lowest
+  // index) and skipped.
   std::size_t collect_range(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                             const Eigen::VectorXd& intensities, double max_range, double resolution,
-                            Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad);
+                            Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad, bool visits);
   void merge(const ScanScratch& other);
+  // collect() without clearing first, counting visits as collect_range() does.
+  std::size_t cast_rays(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
+                        const Eigen::VectorXd& intensities, double max_range, double resolution, int threads,
+                        const ProgressCallback* progress, bool visits);
+  void add_ray_ends(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                    double max_range, double resolution, const RayStatistics& stats);
 
   // Bit of voxel k inside its chunk: block-major, then index_in_block().
   [[nodiscard]] static constexpr std::size_t bit_in_chunk(const VoxelKey& k) noexcept {
@@ -179,8 +200,9 @@ class ScanScratch {
     return b;
   }
   std::size_t chunk(const VoxelKey& chunk_key);
-  // Marks free every voxel cast_ray() visits from \p origin to \p end.
-  void mark_ray(const Eigen::Vector3d& origin, const Eigen::Vector3d& end, double resolution);
+  // Marks free every voxel cast_ray() visits from \p origin to \p end, calling visit(key) for each.
+  template <class Visit>
+  void mark_ray(const Eigen::Vector3d& origin, const Eigen::Vector3d& end, double resolution, Visit&& visit);
 
   std::vector<Chunk> chunks_;
   FlatKeyMap chunk_index_;
@@ -188,6 +210,8 @@ class ScanScratch {
   FlatKeyMap hit_index_;
   std::int64_t last_ = -1;
   std::vector<ScanScratch> helpers_;  // per-thread scratches, kept between scans
+  ScanHits ray_hits_;                 // RayStatistics (a helper's: its visits only)
+  bool has_statistics_ = false;
 };
 
 }  // namespace iwlomap::detail

@@ -18,7 +18,9 @@
 #include "integrate/absolute_log_odds.h"
 #include "integrate/batch_apply.h"
 #include "integrate/batch_input.h"
+#include "integrate/block_sorted_batch.h"
 #include "integrate/progress_report.h"
+#include "integrate/scan_apply.h"
 #include "integrate/scan_scratch.h"
 #include "integrate/updater.h"
 #include "integrate/voxel_update.h"
@@ -158,15 +160,28 @@ struct OutofcoreTileMapper::Impl {
         accessors.emplace_back(t->grid);
         t->dirty = true;
       }
-      struct Locate {
-        Impl& m;
-        detail::VoxelBlock& block(std::size_t j, const VoxelKey& block_key, std::size_t) {
-          return m.accessors[m.routing.slot_of(j)].block(block_key);
-        }
-        detail::BlockGrid& grid(std::size_t j) { return m.slot_tile[m.routing.slot_of(j)]->grid; }
-      };
-      detail::apply_batch(detail::ObservationRows(batch.data(), nullptr), batch.size(), Locate{*this}, in, updater,
-                          {total_known, none_skipped});
+      const detail::FloorDivider divide(resolution);
+      detail::BlockSortedBatch sorted;  // scattered points, as the RAM backend takes them
+      if (detail::BlockSortedBatch::suits(points, intensities, skip, divide) &&
+          sorted.build(points, intensities, is_occupied, skip, divide)) {
+        struct ByBlock {
+          Impl& m;
+          std::uint32_t slot(const VoxelKey& block_key) const { return m.routing.find(m.routing.tile_of_block(block_key)); }
+          detail::VoxelBlock& block(const VoxelKey& block_key) { return m.accessors[slot(block_key)].block(block_key); }
+          detail::BlockGrid& grid(const VoxelKey& block_key) { return m.slot_tile[slot(block_key)]->grid; }
+        };
+        detail::apply_block_sorted(sorted, ByBlock{*this}, in, updater, total_known);
+      } else {
+        struct ByRow {
+          Impl& m;
+          detail::VoxelBlock& block(std::size_t j, const VoxelKey& block_key, std::size_t) {
+            return m.accessors[m.routing.slot_of(j)].block(block_key);
+          }
+          detail::BlockGrid& grid(std::size_t j) { return m.slot_tile[m.routing.slot_of(j)]->grid; }
+        };
+        detail::apply_batch(detail::ObservationRows(batch.data(), nullptr), batch.size(), ByRow{*this}, in, updater,
+                            {total_known, none_skipped});
+      }
       if (hit_settings.enabled)
         for (std::size_t j = 0; j < batch.size(); ++j)
           slot_tile[routing.slot_of(j)]->hits->add_row(points, intensities, is_occupied, batch[j].row,
@@ -199,22 +214,30 @@ struct OutofcoreTileMapper::Impl {
     skipped += skip;
   }
 
-  void observe(detail::VoxelBlock& b, detail::Voxel& v, double intensity, bool occupied_flag) {
-    if (detail::observe_voxel(b, v, intensity, occupied_flag, 1.0, updater)) ++total_known;
-  }
+  // The Locate of scan_apply.h for tile group \p group: a block is applied when its tile's slot is
+  // in the group; the group's tiles are resident and pinned.
+  struct TileGroupLocate {
+    Impl& m;
+    std::size_t group;
+    [[nodiscard]] detail::Tile* tile_of(const VoxelKey& block_key) const noexcept {
+      const std::uint32_t s = m.routing.find(m.routing.tile_of_block(block_key));
+      return s != detail::FlatKeyMap::kEmpty && m.slot_group[s] == group ? m.slot_tile[s] : nullptr;
+    }
+    void allocate(const VoxelKey& block_key, const detail::CellMask& cells) {
+      if (detail::Tile* t = tile_of(block_key)) t->grid.ensure_cells(t->grid.get_or_create(block_key), cells);
+    }
+    [[nodiscard]] detail::VoxelBlock* find(const VoxelKey& block_key) const noexcept {
+      const detail::Tile* t = tile_of(block_key);
+      return t != nullptr ? t->grid.find(block_key) : nullptr;
+    }
+  };
 
-  // Hits are routed like batch observations; free voxels stay in the scan scratch, whose 32^3
-  // chunks may straddle tiles: each tile's slot lists the chunks that hold its free voxels.
-  // Reports kCastingRays, then kUpdatingVoxels by tiles (an exception of the callback there is
-  // rethrown once the scan is applied in full).
-  void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
-                   double max_range, int threads, const ProgressCallback* progress) {
-    detail::check_scan_input(origin, points, intensities, max_range, resolution);
-    const std::size_t skip = scratch.collect(origin, points, intensities, max_range, resolution, threads, progress);
-    const std::size_t chunks = scratch.num_chunks();
-    const std::vector<detail::ScanScratch::Hit>& hits = scratch.hits();
+  // Gives every tile the scan touches a slot in `routing` (the hits' tiles, then the free
+  // voxels'), and each slot the list of scratch chunks that hold its free voxels (32^3 chunks may
+  // straddle tiles).
+  void route_scan(const detail::ScanScratch& scan) {
+    const std::vector<detail::ScanScratch::Hit>& hits = scan.hits();
     routing.assign(hits.size(), [&](std::size_t i) { return hits[i].key; });
-    routing.sort(hits.size());
     const auto grow_lists = [&] {
       const std::size_t slots = routing.tiles().size();
       if (slot_chunks.size() < slots) slot_chunks.resize(slots);
@@ -225,10 +248,10 @@ struct OutofcoreTileMapper::Impl {
       slot_chunks[s].clear();
       slot_last_chunk[s] = kNoChunk;
     }
-    for (std::size_t ci = 0; ci < chunks; ++ci) {
+    for (std::size_t ci = 0; ci < scan.num_chunks(); ++ci) {
       VoxelKey last_block{};
       bool first = true;
-      scratch.for_each_free(ci, ci + 1, [&](const VoxelKey& block_key, int) {
+      scan.for_each_free(ci, ci + 1, [&](const VoxelKey& block_key, int) {
         if (!first && block_key == last_block) return;
         first = false;
         last_block = block_key;
@@ -245,21 +268,45 @@ struct OutofcoreTileMapper::Impl {
         }
       });
     }
-    routing.close_ranges();  // slots added by free voxels own no hits
-    // The scan's hit statistics, gathered as every backend gathers them, merged tile by tile.
-    std::unique_ptr<detail::HitAccumulator> scan_hits;
-    if (hit_settings.enabled) {
-      scan_hits = std::make_unique<detail::HitAccumulator>(resolution);
-      scan_hits->add_scan(origin, points, intensities, max_range, updater.params().intensity_threshold);
-    }
+  }
 
+  // The scan is collected (its hit statistics in the same walk), then applied (apply_collected()).
+  // Reports kCastingRays, then kUpdatingVoxels (an exception of the callback there is rethrown once
+  // the scan is applied in full).
+  void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
+                   double max_range, int threads, const ProgressCallback* progress) {
+    detail::check_scan_input(origin, points, intensities, max_range, resolution);
+    const detail::RayStatistics ray_stats{updater.params().intensity_threshold};
+    const detail::RayStatistics* stats = hit_settings.enabled ? &ray_stats : nullptr;
+    const std::size_t skip =
+        scratch.collect(origin, points, intensities, max_range, resolution, threads, progress, stats);
+    std::exception_ptr deferred;
+    apply_collected(scratch, threads, progress, deferred);
+    skipped += skip;
+    if (deferred) std::rethrow_exception(deferred);
+  }
+
+  // A collected scan, routed to tiles and applied tile group by tile group through scan_apply.h,
+  // each group's free voxels on up to \p threads threads, with the scan's hit statistics when the
+  // map keeps them (std::logic_error when it does and \p scan has none: nothing is changed).
+  // Reports kUpdatingVoxels by scratch chunks; an exception of the callback is kept in \p deferred.
+  void apply_collected(const detail::ScanScratch& scan, int threads, const ProgressCallback* progress,
+                       std::exception_ptr& deferred) {
+    if (hit_settings.enabled && scan.statistics() == nullptr)
+      throw std::logic_error("iwlomap: a collected scan carries no points for the hit statistics; turn them off");
+    route_scan(scan);
     const std::size_t slots = routing.tiles().size();
     slot_group.assign(slots, kNoGroup);
     slot_tile.assign(slots, nullptr);
+    // Reported units: each group's chunks and one for its hits; with one group, every chunk.
+    std::size_t units = scan.num_chunks() + 1;
+    if (slots > cache.capacity()) {
+      units = 0;
+      for (std::size_t s = 0; s < slots; ++s) units += slot_chunks[s].size() + 1;
+    }
+    detail::StageProgress report(progress, ProgressStage::kUpdatingVoxels, units, &deferred);
+    std::size_t reported = 0;
     std::size_t group_id = 0;
-    std::exception_ptr deferred;
-    detail::StageProgress report(progress, ProgressStage::kUpdatingVoxels, slots, &deferred);
-    std::size_t tiles_done = 0;
     for_each_group([&](const std::uint32_t* group_slots, detail::Tile* const* group, std::size_t count) {
       ++group_id;
       for (std::size_t g = 0; g < count; ++g) {
@@ -267,51 +314,36 @@ struct OutofcoreTileMapper::Impl {
         slot_tile[group_slots[g]] = group[g];
         group[g]->dirty = true;
       }
-      detail::Tile* tile = nullptr;
-      detail::VoxelBlock* block = nullptr;
-      VoxelKey block_key_cached{};
-      bool have_block = false;
-      const auto apply_free = [&](const VoxelKey& block_key, int index) {
-        if (!have_block || block_key != block_key_cached) {
-          have_block = true;
-          block_key_cached = block_key;
-          const std::uint32_t s = routing.find(routing.tile_of_block(block_key));
-          tile = slot_group[s] == group_id ? slot_tile[s] : nullptr;
-          block = tile != nullptr ? &tile->grid.get_or_create(block_key) : nullptr;
-        }
-        if (block != nullptr) observe(*block, tile->grid.voxel(*block, index), 0.0, false);
-      };
-      if (count == slots) {
-        scratch.for_each_free(0, chunks, apply_free);
-      } else {
+      TileGroupLocate locate{*this, group_id};
+      detail::allocate_scan(scan, locate);
+      detail::ChunkSelection chunks;
+      if (count != slots) {
         group_chunks.clear();
         for (std::size_t g = 0; g < count; ++g)
           group_chunks.insert(group_chunks.end(), slot_chunks[group_slots[g]].begin(), slot_chunks[group_slots[g]].end());
         std::sort(group_chunks.begin(), group_chunks.end());
         group_chunks.erase(std::unique(group_chunks.begin(), group_chunks.end()), group_chunks.end());
-        for (const std::size_t ci : group_chunks) scratch.for_each_free(ci, ci + 1, apply_free);
+        chunks.list = &group_chunks;
       }
-      for (std::size_t g = 0; g < count; ++g) {
-        detail::BlockAccessor acc(group[g]->grid);
-        const std::uint32_t s = group_slots[g];
-        for (std::size_t j = routing.begin(s); j < routing.begin(s + 1); ++j) {
-          const detail::ScanScratch::Hit& h = hits[routing.order()[j]];
-          detail::VoxelBlock* b = nullptr;
-          detail::Voxel& v = acc.voxel(h.key, b);
-          observe(*b, v, h.intensity, true);
-        }
-      }
-      if (scan_hits)
-        scan_hits->for_each_block([&](const VoxelKey& block_key, const detail::HitAccumulator::Block& cells) {
-          const std::uint32_t s = routing.find(routing.tile_of_block(block_key));
-          if (s != detail::FlatKeyMap::kEmpty && slot_group[s] == group_id) slot_tile[s]->hits->merge(block_key, cells);
+      const detail::Updater& u = updater;
+      total_known += detail::apply_scan(
+          scan, chunks, threads, locate,
+          [&u](detail::VoxelBlock& b, int index, const VoxelKey&, double intensity, bool occupied) {
+            return detail::observe_voxel(b, b.existing(index), intensity, occupied, 1.0, u);
+          },
+          report, reported);
+      reported += chunks.size(scan) + 1;
+      const detail::ScanHits* h = hit_settings.enabled ? scan.statistics() : nullptr;
+      if (h != nullptr) {  // each tile takes its own blocks' statistics
+        h->for_each_block([&](const VoxelKey& b, const detail::ScanHits::Counts& c) {
+          if (detail::Tile* t = locate.tile_of(b)) t->hits->merge_visits(b, c);
         });
-      tiles_done += count;
-      report.report(tiles_done);
+        h->for_each_hit([&](const VoxelKey& k, const detail::ScanHits::HitSum& sum) {
+          if (detail::Tile* t = locate.tile_of(detail::block_of(k))) t->hits->merge_hits(k, sum);
+        });
+      }
     });
-    skipped += skip;
     report.finish();
-    if (deferred) std::rethrow_exception(deferred);
   }
 
   void set_log_odds(const Eigen::MatrixXd& points, const Eigen::VectorXd& log_odds) {

@@ -180,6 +180,15 @@ void OutofcoreTileMapper::for_each_voxel(const std::function<void(const VoxelKey
   m.for_each_known([&](const VoxelKey& key, const detail::Voxel& v) { visit(key, detail::state_of(v)); });
 }
 
+void detail::BackendAccess::apply_to_disk(OutofcoreTileMapper& map, const ScanScratch& scratch) {
+  OutofcoreTileMapper::Impl& m = map.impl();
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.check_writable("insert_scan()");
+  std::exception_ptr deferred;
+  m.apply_collected(scratch, map.get_num_threads(), &map.get_progress_callback(), deferred);
+  if (deferred) std::rethrow_exception(deferred);
+}
+
 void detail::BackendAccess::for_each_known_block_disk(const OutofcoreTileMapper& map, const KnownBlockVisit& visit) {
   (void)map.impl();
   OutofcoreTileMapper::Impl& m = *map.impl_;

@@ -17,12 +17,10 @@
 
 #include <algorithm>
 #include <array>
-#include <atomic>
 #include <cstdint>
 #include <exception>
 #include <memory>
 #include <stdexcept>
-#include <thread>
 
 namespace iwlomap {
 
@@ -47,7 +45,12 @@ struct ProbabilityUpdater::Impl {
       detail::BlockSortedBatch sorted;
       if (sorted.build(points, intensities, is_occupied, skip, divide)) {
         skipped += skip;
-        detail::apply_block_sorted(sorted, grid, {intensities, is_occupied, weights}, updater, known);
+        struct InGrid {
+          detail::BlockGrid& grid_;
+          detail::VoxelBlock& block(const VoxelKey& block_key) { return grid_.get_or_create(block_key); }
+          detail::BlockGrid& grid(const VoxelKey&) { return grid_; }
+        };
+        detail::apply_block_sorted(sorted, InGrid{grid}, {intensities, is_occupied, weights}, updater, known);
         return;
       }
     }
@@ -97,47 +100,22 @@ void ProbabilityUpdater::batch_update_iwlo(const Eigen::MatrixXd& points, const 
 
 namespace {
 
-// Applies a collected scan (one observation per voxel) to the grid on up to \p threads threads,
-// reporting ProgressStage::kUpdatingVoxels (scratch chunks) to \p progress; an exception of the
-// callback is kept in \p deferred and the scan applied in full.
+// Applies a collected scan (one observation per voxel) to the grid on up to \p threads threads
+// (scan_apply.h), reporting ProgressStage::kUpdatingVoxels (scratch chunks) to \p progress; an
+// exception of the callback is kept in \p deferred and the scan applied in full.
 template <class Impl>
 void apply_collected(Impl& m, const detail::ScanScratch& scratch, int threads, const ProgressCallback* progress,
                      std::exception_ptr& deferred) {
-  const std::size_t chunks = scratch.num_chunks();
-  const auto t = static_cast<std::size_t>(std::min<std::size_t>(static_cast<std::size_t>(threads), chunks / 4 + 1));
-  detail::allocate_scan(scratch, m.grid);
-  detail::StageProgress report(progress, ProgressStage::kUpdatingVoxels, chunks + 1, &deferred);
-  const auto observe = [&m](std::size_t& known) {
-    return [&m, &known](detail::VoxelBlock& b, int index, const VoxelKey&, double intensity, bool occupied) {
-      if (detail::observe_voxel(b, b.existing(index), intensity, occupied, 1.0, m.updater)) ++known;
-    };
-  };
-  if (t <= 1) {
-    detail::apply_scan_free_reporting(scratch, m.grid, report, observe(m.known));
-  } else {
-    // Each thread updates the free voxels of its own ranges of scratch chunks. Chunks are
-    // disjoint, so are their blocks: no two threads touch one voxel, and the per-voxel results
-    // equal the single-thread ones.
-    std::vector<std::size_t> newly_known(t, 0);
-    std::atomic<std::size_t> next{0};  // chunks near the sensor hold far more voxels: share them out
-    std::atomic<std::size_t> finished{0};  // chunks applied, for the reports of the calling thread
-    const auto work = [&](std::size_t k) {
-      constexpr std::size_t kGrain = 4;
-      for (std::size_t c = next.fetch_add(kGrain); c < chunks; c = next.fetch_add(kGrain)) {
-        const std::size_t end = std::min(c + kGrain, chunks);
-        detail::apply_scan_free(scratch, m.grid, c, end, observe(newly_known[k]));
-        const std::size_t applied = finished.fetch_add(end - c, std::memory_order_relaxed) + (end - c);
-        if (k == 0) report.report(applied);  // the calling thread only
-      }
-    };
-    std::vector<std::thread> workers;
-    for (std::size_t k = 1; k < t; ++k) workers.emplace_back(work, k);
-    work(0);  // the calling thread works too
-    for (auto& w : workers) w.join();
-    for (const std::size_t n : newly_known) m.known += n;
-  }
-  detail::apply_scan_hits(scratch, m.grid, observe(m.known));
-  report.finish();  // the hits are the last unit
+  detail::OneGrid locate(m.grid);
+  detail::allocate_scan(scratch, m.grid, locate);
+  detail::StageProgress report(progress, ProgressStage::kUpdatingVoxels, scratch.num_chunks() + 1, &deferred);
+  const detail::Updater& updater = m.updater;
+  m.known += detail::apply_scan(
+      scratch, {}, threads, locate,
+      [&updater](detail::VoxelBlock& b, int index, const VoxelKey&, double intensity, bool occupied) {
+        return detail::observe_voxel(b, b.existing(index), intensity, occupied, 1.0, updater);
+      },
+      report);
 }
 
 }  // namespace
@@ -148,20 +126,24 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
   detail::check_scan_input(origin, points, intensities, max_range, m.resolution);
   const int threads = get_num_threads();
   const ProgressCallback* progress = &get_progress_callback();
-  const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, threads, progress);
+  const detail::RayStatistics ray_stats{m.updater.params().intensity_threshold};
+  const detail::RayStatistics* stats = m.hits.enabled() ? &ray_stats : nullptr;
+  const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, threads, progress,
+                                             stats);
   std::exception_ptr deferred;
   apply_collected(m, m.scratch, threads, progress, deferred);
   m.skipped += skip;
-  m.hits.add_scan(origin, points, intensities, max_range, m.updater.params().intensity_threshold);
+  m.hits.add_scan(m.scratch.statistics());
   if (deferred) std::rethrow_exception(deferred);
 }
 
 void detail::BackendAccess::apply_to_ram(ProbabilityUpdater& map, const ScanScratch& scratch) {
   ProbabilityUpdater::Impl& m = map.impl();
-  if (m.hits.enabled())
+  if (m.hits.enabled() && scratch.statistics() == nullptr)
     throw std::logic_error("iwlomap: a collected scan carries no points for the hit statistics; turn them off");
   std::exception_ptr deferred;
   apply_collected(m, scratch, map.get_num_threads(), &map.get_progress_callback(), deferred);
+  m.hits.add_scan(scratch.statistics());
   if (deferred) std::rethrow_exception(deferred);
 }
 
