@@ -86,7 +86,7 @@ if [ "$SANITIZE" = 1 ]; then
   cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DIWLOMAP_BUILD_TESTS=ON -DIWLOMAP_TSAN=ON \
     -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_WITH_VIEWER=OFF -DIWLOMAP_WITH_FILTERS=OFF "${SANITIZER_FLAGS[@]}" \
     "${CCACHE_ARGS[@]}"
-  cmake --build build-tsan -j "${JOBS:-$(nproc)}" --target test_probability_updater test_background_job \
+  cmake --build build-tsan -j "${JOBS:-$(nproc)}" --target test_ram_scans test_background_job \
     test_optimizer test_outofcore_tile_mapper test_disk_commits test_internals test_scan_matcher test_registered_sonar_mapper \
     test_pose_graph_mapper test_backend_contract
   stage_end
