@@ -180,7 +180,7 @@ Result run_job(const Job& job) {
     if (k == 0 && job.disk)
       r.ping_tiles = static_cast<double>(dynamic_cast<iwlomap::OutofcoreTileMapper&>(*map).get_num_tiles());
   }
-  r.nodes = static_cast<double>(map->get_num_nodes());
+  r.nodes = static_cast<double>(map->get_num_known_voxels());
   r.memory_mb = map->get_memory_usage().memory_mb;
   if (job.disk) {
     auto& disk = dynamic_cast<iwlomap::OutofcoreTileMapper&>(*map);

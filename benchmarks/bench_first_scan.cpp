@@ -91,7 +91,7 @@ Run one_scan(const Scan& s, double resolution) {
   const auto t0 = iwlomap::bench::now();
   map.insert_scan(s.origin, s.points, s.intensities);
   const double ms = iwlomap::bench::elapsed(t0, iwlomap::bench::now()).wall_ms;
-  return {ms, minor_faults() - f0, map.get_num_nodes()};
+  return {ms, minor_faults() - f0, map.get_num_known_voxels()};
 }
 
 // The fresh-process row: a child loads the scan, then times its one scan and reports it on a pipe.

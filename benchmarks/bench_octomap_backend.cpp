@@ -229,7 +229,7 @@ int main(int argc, char** argv) try {
     }
     if (rep == opt.reps - 1) {
       identical = identical && state_of(ram) == state_of(octo) && occ_ram == occ_octo;
-      known = ram.get_num_nodes();
+      known = ram.get_num_known_voxels();
       occupied = static_cast<std::size_t>(occ_ram.rows());
       ram_mb = ram.get_memory_usage().memory_mb;
       const iwlomap::MemoryStats m = octo.get_memory_usage();

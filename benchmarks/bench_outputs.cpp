@@ -120,7 +120,7 @@ int main(int argc, char** argv) try {
     auto t0 = now();
     map.insert_scan(origin, points, intensities);
     map_ms.push_back(elapsed(t0, now()).wall_ms);
-    voxels = map.get_num_nodes();
+    voxels = map.get_num_known_voxels();
 
     t0 = now();
     iwlomap::export_octomap(map, dir + "/map.bt");

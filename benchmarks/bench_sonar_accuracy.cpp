@@ -944,7 +944,7 @@ int main(int argc, char** argv) {
                   "%zu of them in the corridor, which holds %zu footprint voxels; simulation %.1f s, projection and mapping %.1f s",
                   noise.name.c_str(), sim.pings.size(), sim.beams, 100.0 * sim.early_returns / sim.beams,
                   100.0 * sim.late_returns / sim.beams, sim.footprint_truth.size(), sim.visible_truth.size(),
-                  visible_recall, observations, maps.front()->get_num_nodes(), known_inside,
+                  visible_recall, observations, maps.front()->get_num_known_voxels(), known_inside,
                   truth_inside.size(), std::chrono::duration<double>(t1 - t0).count(),
                   std::chrono::duration<double>(t2 - t1).count());
     notes.emplace_back(line);

@@ -133,7 +133,7 @@ void expect_same_map(IMapperBackend& got, IMapperBackend& want) {
                                                                   " n = " + std::to_string(it->second.second));
   }
   EXPECT_EQ(mismatches, 0u);
-  EXPECT_EQ(got.get_num_nodes(), want.get_num_nodes());
+  EXPECT_EQ(got.get_num_known_voxels(), want.get_num_known_voxels());
   EXPECT_EQ(got.get_num_skipped_points(), want.get_num_skipped_points());
   for (double p : {-1.0, 0.0, 0.3, 0.5, 0.7, 0.95})
     EXPECT_EQ(sorted_rows(got.get_occupied_voxels(p)), sorted_rows(want.get_occupied_voxels(p))) << "min_probability " << p;
@@ -160,7 +160,7 @@ TYPED_TEST(BackendContract, ReportsTypeResolutionAndEmptyMapWhenNew) {
   auto map = this->make(0.25);
   EXPECT_EQ(map->get_backend_type(), TypeParam::kType);
   EXPECT_EQ(map->get_resolution(), 0.25);
-  EXPECT_EQ(map->get_num_nodes(), 0u);
+  EXPECT_EQ(map->get_num_known_voxels(), 0u);
   EXPECT_EQ(map->get_num_skipped_points(), 0u);
   EXPECT_EQ(map->get_occupied_voxels().rows(), 0);
   EXPECT_EQ(map->get_occupied_voxels().cols(), 4);
@@ -348,9 +348,9 @@ TYPED_TEST(BackendContract, ForgetsVoxelsAndKeepsParamsWhenCleared) {
   const Batch batch = random_batch(rng, 2000, 2.0);
   map->set_occupied_threshold(0.65);
   map->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
-  ASSERT_GT(map->get_num_nodes(), 0u);
+  ASSERT_GT(map->get_num_known_voxels(), 0u);
   map->clear();
-  EXPECT_EQ(map->get_num_nodes(), 0u);
+  EXPECT_EQ(map->get_num_known_voxels(), 0u);
   EXPECT_EQ(map->get_num_skipped_points(), 0u);
   EXPECT_TRUE(snapshot(*map).empty());
   EXPECT_EQ(map->get_occupied_voxels(0.0).rows(), 0);
@@ -464,7 +464,7 @@ TYPED_TEST(BackendContract, ClonesIndependentlyWhenSupported) {
   const Snapshot changed = snapshot(*map);
   copy->clear();  // the copy changes: the original does not
   EXPECT_EQ(snapshot(*map), changed);
-  EXPECT_EQ(copy->get_num_nodes(), 0u);
+  EXPECT_EQ(copy->get_num_known_voxels(), 0u);
 }
 
 TYPED_TEST(BackendContract, DoesNothingWhenBatchEmpty) {
@@ -473,7 +473,7 @@ TYPED_TEST(BackendContract, DoesNothingWhenBatchEmpty) {
   map->batch_update_iwlo(Eigen::MatrixXd(0, 3), Eigen::VectorXd(0), {}, Eigen::VectorXd(0));
   map->insert_scan(Eigen::Vector3d::Zero(), Eigen::MatrixXd(0, 3), Eigen::VectorXd(0));
   map->set_log_odds(Eigen::MatrixXd(0, 3), Eigen::VectorXd(0));
-  EXPECT_EQ(map->get_num_nodes(), 0u);
+  EXPECT_EQ(map->get_num_known_voxels(), 0u);
 }
 
 // ---- errors: the same exception, with the same message, and no change ----
@@ -620,7 +620,7 @@ TEST(ReferenceApiBackend, WorksThroughTheDefaultsWhenOnlyRequiredMethodsExist) {
     ram.insert_scan(scan.origin, points, scan.intensities, 18.0);
   }
   const auto& voxels = dynamic_cast<ReferenceApiDouble&>(*map).voxels();
-  EXPECT_EQ(voxels.size(), ram.get_num_nodes());
+  EXPECT_EQ(voxels.size(), ram.get_num_known_voxels());
   std::size_t mismatches = 0;
   ram.for_each_voxel([&](const VoxelKey& k, const VoxelState& v) {
     const auto it = voxels.find(k);

@@ -307,8 +307,8 @@ TEST(AsyncMapper, BothModesBuildTheIdenticalMap) {
     a.integrate(s.origin, s.points, s.intensities, 20.0);
     b.integrate(s.origin, s.points, s.intensities, 20.0);
   }
-  ASSERT_EQ(a.get_num_nodes(), b.get_num_nodes());
-  ASSERT_GT(a.get_num_nodes(), 1000u);
+  ASSERT_EQ(a.get_num_known_voxels(), b.get_num_known_voxels());
+  ASSERT_GT(a.get_num_known_voxels(), 1000u);
   std::size_t compared = 0;
   a.map().for_each_voxel([&](const iwlomap::VoxelKey& k, const iwlomap::VoxelState& s) {
     const auto other = b.query(iwlomap::key_to_center(k, 0.2));
@@ -317,7 +317,7 @@ TEST(AsyncMapper, BothModesBuildTheIdenticalMap) {
     ASSERT_EQ(other->count, s.count);
     ++compared;
   });
-  EXPECT_EQ(compared, a.get_num_nodes());
+  EXPECT_EQ(compared, a.get_num_known_voxels());
 }
 
 TEST(AsyncMapper, QueriesSeeEveryScanIntegratedBeforeThem) {
@@ -325,10 +325,10 @@ TEST(AsyncMapper, QueriesSeeEveryScanIntegratedBeforeThem) {
   iwlomap::AsyncMapper m(map, ExecutionMode::kParallel);
   const auto scans = three_scans();
   m.integrate(scans[0].origin, scans[0].points, scans[0].intensities);
-  const std::size_t after_one = m.get_num_nodes();
+  const std::size_t after_one = m.get_num_known_voxels();
   iwlomap::ProbabilityUpdater direct(0.2);
   direct.insert_scan(scans[0].origin, scans[0].points, scans[0].intensities);
-  EXPECT_EQ(after_one, direct.get_num_nodes());
+  EXPECT_EQ(after_one, direct.get_num_known_voxels());
 }
 
 TEST(AsyncMapper, ScanErrorsSurfaceAtTheNextSync) {
@@ -339,7 +339,7 @@ TEST(AsyncMapper, ScanErrorsSurfaceAtTheNextSync) {
   one << 1.0, 0.0, 0.0;
   m.integrate(Eigen::Vector3d::Zero(), one, Eigen::VectorXd::Constant(1, 200.0));
   EXPECT_THROW(m.sync(), std::invalid_argument);
-  EXPECT_EQ(m.get_num_nodes(), 6u);  // the scan after the bad one was integrated: 5 free + 1 hit
+  EXPECT_EQ(m.get_num_known_voxels(), 6u);  // the scan after the bad one was integrated: 5 free + 1 hit
   EXPECT_THROW(iwlomap::AsyncMapper(nullptr, ExecutionMode::kSequential), std::invalid_argument);
 }
 

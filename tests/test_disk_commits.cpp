@@ -111,7 +111,7 @@ TEST(OutofcoreTileMapper, ReopensAsOneCommittedStateWhenWriterKilledAtRandomMome
     EXPECT_TRUE(is_before || is_after) << "the map holds " << got.size() << " voxels, neither its state after step "
                                        << last << " (" << before.size() << " voxels) nor after step " << last + 1
                                        << " (" << after.size() << ")";
-    EXPECT_EQ(disk->get_num_nodes(), got.size());
+    EXPECT_EQ(disk->get_num_known_voxels(), got.size());
     after_rounds += is_after && !is_before ? 1 : 0;
   }
   std::cout << "[          ] " << kRounds << " kills; up to " << max_steps << " steps flushed; " << after_rounds
@@ -170,7 +170,7 @@ TEST(OutofcoreTileMapper, RollbackReturnsToTheLastCommitAndChangesNoFile) {
     EXPECT_TRUE(fs::exists(fs::path(dir) / "iwlomap_map.staging"));
     map.rollback();
     EXPECT_EQ(snapshot(map), committed);
-    EXPECT_EQ(map.get_num_nodes(), committed.size());
+    EXPECT_EQ(map.get_num_known_voxels(), committed.size());
     EXPECT_EQ(map.get_params().occupied_threshold, threshold);
     EXPECT_FALSE(map.get_hit_accumulation());
     EXPECT_EQ(directory_image(dir), image);

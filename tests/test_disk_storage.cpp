@@ -109,7 +109,7 @@ TEST_F(DamagedTile, ThrowsNamingFileAndNeverReplacesItWhenPayloadByteFlipped) {
   const ProbabilityUpdater ram = ram_after_steps(4);
   {
     OutofcoreTileMapper map(dir_, tile_test::kResolution, tile_test::kTileSize, 4);  // headers are fine
-    EXPECT_EQ(map.get_num_nodes(), ram.get_num_nodes());
+    EXPECT_EQ(map.get_num_known_voxels(), ram.get_num_known_voxels());
     const StorageError e = expect_storage_error([&] { (void)snapshot(map); }, StorageError::Kind::kCorrupt);
     EXPECT_EQ(e.path(), victim_);
     EXPECT_NE(std::string(e.what()).find("checksum"), std::string::npos) << e.what();
@@ -142,7 +142,7 @@ TEST_F(DamagedTile, ThrowsNamingFileAndNeverReplacesItWhenPayloadByteFlipped) {
     EXPECT_THROW(map.batch_update_iwlo(points, Eigen::Vector2d(200, 200), {true, true}), StorageError);
     EXPECT_EQ(map.query(ph)->count, healthy_before->count);
     EXPECT_EQ(map.query(ph)->log_odds, healthy_before->log_odds);
-    EXPECT_EQ(map.get_num_nodes(), ram.get_num_nodes());
+    EXPECT_EQ(map.get_num_known_voxels(), ram.get_num_known_voxels());
     // The healthy part still takes updates, and is written by flush.
     map.batch_update_iwlo(points.topRows(1), Eigen::VectorXd::Constant(1, 200.0), {true});
     map.flush();
@@ -174,7 +174,7 @@ TEST_F(DamagedTile, RepairSetsTheDamagedTileAsideAndKeepsEveryOtherVoxel) {
   {
     OutofcoreTileMapper map(dir_, tile_test::kResolution, tile_test::kTileSize, 4);
     EXPECT_EQ(snapshot(map), kept);
-    EXPECT_EQ(map.get_num_nodes(), kept.size());
+    EXPECT_EQ(map.get_num_known_voxels(), kept.size());
   }
   EXPECT_TRUE(OutofcoreTileMapper::repair(dir_).set_aside.empty()) << "a sound map is left as it is";
   // A missing tile is forgotten, a foreign one moved aside.

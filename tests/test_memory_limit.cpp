@@ -101,7 +101,7 @@ TEST_F(MemoryLimit, RefusesAScanWhoseRayScratchWouldPassIt) {
     } catch (const MemoryLimitError& e) {
       EXPECT_NE(std::string(e.what()).find("ray scratch"), std::string::npos) << e.what();
     }
-    EXPECT_EQ(map.get_num_nodes(), 0u);
+    EXPECT_EQ(map.get_num_known_voxels(), 0u);
     set_map_memory_limit(0);
   }
 }

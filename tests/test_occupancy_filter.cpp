@@ -91,13 +91,13 @@ TEST(OccupancyFilter, EmptyInputReturnsTheCurrentMap) {
   f.setInputCloud(make_wall_scan());
   Cloud first;
   f.filter(first);
-  const std::size_t known = f.getMap()->get_num_nodes();
+  const std::size_t known = f.getMap()->get_num_known_voxels();
   Cloud::Ptr empty(new Cloud);
   f.setInputCloud(empty);
   Cloud second;
   f.filter(second);
   EXPECT_EQ(keys_of(second, 0.1), keys_of(first, 0.1));
-  EXPECT_EQ(f.getMap()->get_num_nodes(), known);
+  EXPECT_EQ(f.getMap()->get_num_known_voxels(), known);
 }
 
 TEST(OccupancyFilter, NoInputLeavesTheOutputUntouched) {
@@ -149,13 +149,13 @@ TEST(OccupancyFilter, IndicesSelectThePointsIntegrated) {
   with_indices.filter(a);
   reference.filter(b);
   EXPECT_EQ(keys_of(a, 0.1), keys_of(b, 0.1));
-  EXPECT_EQ(with_indices.getMap()->get_num_nodes(), reference.getMap()->get_num_nodes());
+  EXPECT_EQ(with_indices.getMap()->get_num_known_voxels(), reference.getMap()->get_num_known_voxels());
   Filter all;
   all.setResolution(0.1);
   all.setInputCloud(in);
   Cloud c;
   all.filter(c);
-  EXPECT_LT(with_indices.getMap()->get_num_nodes(), all.getMap()->get_num_nodes() + 1);
+  EXPECT_LT(with_indices.getMap()->get_num_known_voxels(), all.getMap()->get_num_known_voxels() + 1);
 }
 
 TEST(OccupancyFilter, SuccessiveFramesBuildOneMap) {
@@ -181,7 +181,7 @@ TEST(OccupancyFilter, SuccessiveFramesBuildOneMap) {
     }
     direct.insert_scan(c->sensor_origin_.head<3>().cast<double>(), pts, inten);
   }
-  EXPECT_EQ(direct.get_num_nodes(), f.getMap()->get_num_nodes());
+  EXPECT_EQ(direct.get_num_known_voxels(), f.getMap()->get_num_known_voxels());
   EXPECT_EQ(direct.get_occupied_voxels(0.7).rows(), static_cast<Eigen::Index>(out2.size()));
 }
 
@@ -209,7 +209,7 @@ TEST(OccupancyFilter, WithoutRayCastingIntensityDecidesOccupancy) {
   f.filter(out);
   EXPECT_EQ(out.size(), 10u);
   for (const auto& p : out) EXPECT_NEAR(p.y, 0.05f, 1e-5);
-  EXPECT_EQ(f.getMap()->get_num_nodes(), 20u);  // no rays: only the points' own voxels
+  EXPECT_EQ(f.getMap()->get_num_known_voxels(), 20u);  // no rays: only the points' own voxels
 }
 
 TEST(OccupancyFilter, PointXYZCountsEveryPointAsAFullHit) {
@@ -351,7 +351,7 @@ TEST(OccupancyFilter, MaxRangeClipsRaysAndDropsTheirHits) {
   Cloud out;
   f.filter(out);
   EXPECT_EQ(out.size(), 0u);
-  EXPECT_GT(f.getMap()->get_num_nodes(), 0u);
+  EXPECT_GT(f.getMap()->get_num_known_voxels(), 0u);
   EXPECT_FALSE(f.getMap()->query(Eigen::Vector3d(1.5, 0.05, 0.05)).has_value());
 }
 

@@ -65,7 +65,7 @@ TEST(OccupancyFilterData, OusterFramesGiveAGroundPlaneBelowTheSensor) {
     f.filter(out);
   }
   const auto map = f.getMap();
-  const std::size_t known = map->get_num_nodes();
+  const std::size_t known = map->get_num_known_voxels();
   const std::size_t occupied = out.size();
   std::cout << "[ ouster ] 3 frames at 0.2 m: " << known << " known voxels, " << occupied << " occupied, "
             << known - occupied << " not occupied\n";

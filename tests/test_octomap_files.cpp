@@ -82,7 +82,7 @@ TEST(OctoMapFiles, RestoresEveryLogOddsWhenRamMapExportedToOtAndImported) {
   OctreeMapper octree(r);
   import_octomap(path, octree);
   for (const auto& [k, v] : snapshot(octree)) EXPECT_EQ(v.first, want.at(k).first);
-  EXPECT_EQ(octree.get_num_nodes(), want.size());
+  EXPECT_EQ(octree.get_num_known_voxels(), want.size());
 }
 
 TEST(OctoMapFiles, ExpandsPrunedNodesWhenImported) {
@@ -123,7 +123,7 @@ TEST(OctoMapFiles, ReadsSameOccupiedSetWhenBtReadBinary) {
     want_occupied.insert(world_to_key(occ.row(i).head<3>().transpose(), r));
   EXPECT_GT(want_occupied.size(), 100u);
   EXPECT_EQ(occupied, want_occupied);
-  EXPECT_EQ(occupied.size() + free.size(), ram.get_num_nodes());
+  EXPECT_EQ(occupied.size() + free.size(), ram.get_num_known_voxels());
 
   // Imported, .bt gives OctoMap's clamping log-odds of a fresh tree.
   ProbabilityUpdater copy(r);
@@ -133,12 +133,12 @@ TEST(OctoMapFiles, ReadsSameOccupiedSetWhenBtReadBinary) {
     const bool occ_voxel = want_occupied.count(k) > 0;
     EXPECT_EQ(v.first, static_cast<double>(occ_voxel ? fresh.getClampingThresMaxLog() : fresh.getClampingThresMinLog()));
   }
-  EXPECT_EQ(copy.get_num_nodes(), ram.get_num_nodes());
+  EXPECT_EQ(copy.get_num_known_voxels(), ram.get_num_known_voxels());
   // OctreeMapper::load_from_file uses its own clamping thresholds instead.
   OctreeMapper octree(0.5, 0.7, 0.3, 0.2, 0.9);
   octree.load_from_file(path);
   EXPECT_EQ(octree.get_resolution(), r);
-  EXPECT_EQ(octree.get_num_nodes(), ram.get_num_nodes());
+  EXPECT_EQ(octree.get_num_known_voxels(), ram.get_num_known_voxels());
   EXPECT_EQ(octree.get_occupied_voxels(0.5).rows(), static_cast<Eigen::Index>(want_occupied.size()));
   const VoxelKey some = *want_occupied.begin();
   EXPECT_NEAR(octree.query(key_to_center(some, r))->probability, 0.9, 1e-6);
@@ -159,15 +159,15 @@ TEST(OctoMapFiles, RoundTripsWhenOctreeMapperSavesAndLoads) {
   // The .bt and the .ot of one map hold the same voxels.
   OctreeMapper binary(1.0);
   binary.load_from_file(dir.sub("a.bt"));
-  EXPECT_EQ(binary.get_num_nodes(), map.get_num_nodes());
+  EXPECT_EQ(binary.get_num_known_voxels(), map.get_num_known_voxels());
   // An empty map is a valid (empty) file in both formats.
   OctreeMapper empty(0.25);
   empty.save_to_file(dir.sub("empty.ot"));
   empty.save_to_file(dir.sub("empty.bt"));
   loaded.load_from_file(dir.sub("empty.ot"));
-  EXPECT_EQ(loaded.get_num_nodes(), 0u);
+  EXPECT_EQ(loaded.get_num_known_voxels(), 0u);
   loaded.load_from_file(dir.sub("empty.bt"));
-  EXPECT_EQ(loaded.get_num_nodes(), 0u);
+  EXPECT_EQ(loaded.get_num_known_voxels(), 0u);
   EXPECT_FALSE(fs::exists(dir.sub("a.ot.part")));
 }
 
@@ -190,7 +190,7 @@ TEST(OctoMapFiles, PrintsNothingWhenWritingAndReading) {
   const std::string err = testing::internal::GetCapturedStderr();
   EXPECT_EQ(out, "");
   EXPECT_EQ(err, "");
-  EXPECT_GT(ram.get_num_nodes(), 0u);
+  EXPECT_GT(ram.get_num_known_voxels(), 0u);
 }
 
 // Bad files: each gives the stated exception, names the path, and leaves the map untouched.
@@ -300,7 +300,7 @@ TEST(OctoMapFiles, ThrowsNamingPathAndKeepsMapWhenFileBad) {
   EXPECT_NE(msg.find("0.25"), std::string::npos) << msg;
   EXPECT_NE(msg.find("0.5"), std::string::npos) << msg;
   EXPECT_THROW(import_octomap(dir.sub("good.ot"), coarse), std::invalid_argument);
-  EXPECT_EQ(coarse.get_num_nodes(), 0u);
+  EXPECT_EQ(coarse.get_num_known_voxels(), 0u);
   // Writing: a bad extension, and a directory that does not exist.
   EXPECT_THROW(export_octomap(ram, dir.sub("map.ply")), std::invalid_argument);
   EXPECT_THROW(octree.save_to_file(dir.sub("map.BTX")), std::invalid_argument);
@@ -433,7 +433,7 @@ TEST(OctoMapTools, ReportNoDifferenceWhenExportedBtConvertedAndComparedWithRefer
   for (const auto& [a, b] : {std::make_pair(converted, reference_ot), std::make_pair(reference_ot, converted)}) {
     const Comparison c = compare(compare_tool, a, b);
     EXPECT_TRUE(c.same) << c.output;
-    EXPECT_NE(c.output.find("Expanded num. leafs: " + std::to_string(ram.get_num_nodes())), std::string::npos)
+    EXPECT_NE(c.output.find("Expanded num. leafs: " + std::to_string(ram.get_num_known_voxels())), std::string::npos)
         << c.output;
   }
 

@@ -178,7 +178,7 @@ TEST(OctomapWriter, ImportWithoutAMapOpensTheFileAtItsResolution) {
   const std::unique_ptr<ProbabilityUpdater> opened = import_octomap(dir.sub("m.ot"));
   ASSERT_NE(opened, nullptr);
   EXPECT_DOUBLE_EQ(opened->get_resolution(), 0.1);
-  EXPECT_EQ(opened->get_num_nodes(), map.get_num_nodes());
+  EXPECT_EQ(opened->get_num_known_voxels(), map.get_num_known_voxels());
   std::size_t compared = 0;
   map.for_each_voxel([&](const VoxelKey& k, const VoxelState& v) {
     const std::optional<VoxelState> o = opened->query(center(k, 0.1));

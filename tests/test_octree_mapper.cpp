@@ -73,11 +73,45 @@ TEST(OctreeMapper, MirrorsExactLogOddsIntoOctreeWhenScansAndBatches) {
   EXPECT_EQ(m.num_leaf_nodes, exact.size());
   EXPECT_GT(m.num_nodes, m.num_leaf_nodes);
   EXPECT_GT(m.memory_mb, 0.0);
-  EXPECT_EQ(map.get_num_nodes(), exact.size());
+  EXPECT_EQ(map.get_num_known_voxels(), exact.size());
 }
 
 // The OctoMap backend keeps the RAM backend's exact state in the same layout, so the two list
 // their occupied voxels in the same order, not only as the same set.
+// get_num_nodes() counts as octomap's OcTree::size() does (a leaf at depth 16 and its 16
+// ancestors); the known voxels have their own call, the same for every backend.
+TEST(OctreeMapper, CountsOctreeNodesAsOctomapAndKnownVoxelsApart) {
+  OctreeMapper map(0.1);
+  const IMapperBackend& any = map;
+  EXPECT_EQ(any.get_num_nodes(), 0u);
+  Eigen::MatrixXd p(1, 3);
+  p << 0.05, 0.05, 0.05;
+  map.batch_update_iwlo(p, Eigen::VectorXd::Constant(1, 200.0), {true});
+  EXPECT_EQ(any.get_num_nodes(), 17u);
+  EXPECT_EQ(any.get_num_known_voxels(), 1u);
+  p << 0.15, 0.05, 0.05;  // a sibling: one more leaf
+  map.batch_update_iwlo(p, Eigen::VectorXd::Constant(1, 200.0), {true});
+  EXPECT_EQ(any.get_num_nodes(), 18u);
+  EXPECT_EQ(any.get_num_known_voxels(), 2u);
+
+  // On a scan, the count is the octree's own, as an OcTree holding the same leaves counts it.
+  ProbabilityUpdater ram(0.1);
+  fill_with_scans(map, 1);
+  fill_with_scans(ram, 1);
+  octomap::OcTree tree(0.1);
+  map.for_each_voxel([&tree](const VoxelKey& k, const VoxelState& v) {
+    tree.setNodeValue(octomap::OcTreeKey(static_cast<octomap::key_type>(k.x + 32768),
+                                         static_cast<octomap::key_type>(k.y + 32768),
+                                         static_cast<octomap::key_type>(k.z + 32768)),
+                      static_cast<float>(v.log_odds), /*lazy_eval=*/true);  // no pruning, as the backend
+  });
+  EXPECT_EQ(map.get_num_nodes(), tree.size());
+  EXPECT_GT(map.get_num_nodes(), map.get_num_known_voxels());
+  EXPECT_EQ(map.get_num_known_voxels(), static_cast<std::size_t>(tree.getNumLeafNodes()));
+  EXPECT_EQ(map.get_num_known_voxels(), ram.get_num_known_voxels() + 2 - (ram.query({0.05, 0.05, 0.05}) ? 1 : 0) -
+                                            (ram.query({0.15, 0.05, 0.05}) ? 1 : 0));
+}
+
 TEST(OctreeMapper, ListsOccupiedVoxelsInTheRamBackendsOrderWhenScansAndBatches) {
   const double r = 0.2;
   OctreeMapper octo(r);
@@ -181,7 +215,7 @@ void expect_matches_plain_octree(OctreeMapper& map, const octomap::OcTree& plain
     ASSERT_TRUE(s.has_value());
     EXPECT_EQ(s->log_odds, static_cast<double>(v));
   }
-  EXPECT_EQ(map.get_num_nodes(), want.size());
+  EXPECT_EQ(map.get_num_known_voxels(), want.size());
 }
 
 TEST(OctreeMapper, MatchesPlainOcTreeWhenUpdatePointAndBatchUpdate) {
@@ -307,7 +341,7 @@ TEST(OctreeMapper, KeepsExactStateAndShrinksTreeWhenPruned) {
   EXPECT_EQ(m1.num_leaf_nodes, 2u);
   EXPECT_EQ(m1.num_nodes, m0.num_nodes - 72);
   EXPECT_EQ(snapshot(map), before);
-  EXPECT_EQ(map.get_num_nodes(), 65u);
+  EXPECT_EQ(map.get_num_known_voxels(), 65u);
   // Updating a voxel of the folded cube expands it again; the octree still mirrors the map.
   map.batch_update_iwlo(cube.topRows(1), Eigen::VectorXd::Constant(1, 250.0), {true});
   map.save_to_file(dir.sub("pruned.ot"));
@@ -334,18 +368,18 @@ TEST(OctreeMapper, UpdatesCachedFiguresWhenMapChanges) {
   EXPECT_EQ(map.get_memory_usage().num_leaf_nodes, 2u);
   map.clear();
   EXPECT_EQ(map.get_memory_usage().num_nodes, 0u);
-  EXPECT_EQ(map.get_num_nodes(), 0u);
+  EXPECT_EQ(map.get_num_known_voxels(), 0u);
 }
 
 TEST(OctreeMapper, KeepsMapWhenMovedAndThrowsLogicErrorWhenMovedFrom) {
   OctreeMapper a(0.1);
   a.update_point(Eigen::Vector3d(0.05, 0.05, 0.05), true);
   OctreeMapper b(std::move(a));
-  EXPECT_EQ(b.get_num_nodes(), 1u);
-  EXPECT_THROW((void)a.get_num_nodes(), std::logic_error);  // NOLINT(bugprone-use-after-move)
+  EXPECT_EQ(b.get_num_known_voxels(), 1u);
+  EXPECT_THROW((void)a.get_num_known_voxels(), std::logic_error);  // NOLINT(bugprone-use-after-move)
   OctreeMapper c(0.2);
   c = std::move(b);
-  EXPECT_EQ(c.get_num_nodes(), 1u);
+  EXPECT_EQ(c.get_num_known_voxels(), 1u);
   EXPECT_EQ(c.get_resolution(), 0.1);
 }
 

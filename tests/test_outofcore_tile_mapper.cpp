@@ -139,7 +139,7 @@ TEST(OutofcoreTileMapper, ReadMapInfoReportsTheStoredGeometryWithoutOpening) {
   }
   const DiskMapInfo info = OutofcoreTileMapper::read_map_info(tmp.sub("map"));
   OutofcoreTileMapper reopened(tmp.sub("map"), info.resolution, info.tile_size, 2);
-  EXPECT_EQ(reopened.get_num_nodes(), 1u);
+  EXPECT_EQ(reopened.get_num_known_voxels(), 1u);
   try {
     (void)OutofcoreTileMapper::read_map_info(tmp.sub("absent"));
     FAIL() << "no exception";
@@ -301,7 +301,7 @@ TEST(OutofcoreTileMapper, MatchesRamWhenThreadsUpdateDisjointRegionsConcurrently
   std::atomic<bool> done{false};
   std::thread reader([&] {
     while (!done) {
-      (void)disk.get_num_nodes();
+      (void)disk.get_num_known_voxels();
       (void)disk.query(Eigen::Vector3d(0.85, 0.85, 0.85));
       (void)disk.get_memory_usage();
       std::this_thread::sleep_for(std::chrono::milliseconds(1));
@@ -361,12 +361,12 @@ TEST(OutofcoreTileMapper, OpensAnExistingMapWithItsStoredParametersFromTheDirect
   {
     OutofcoreTileMapper made(dir, 0.1, 3.2, 4);
     made.batch_update_iwlo(points, Eigen::VectorXd::Constant(3, 200.0), std::vector<bool>(3, true));
-    known = made.get_num_nodes();
+    known = made.get_num_known_voxels();
   }
   const OutofcoreTileMapper opened(dir);
   EXPECT_EQ(opened.get_resolution(), 0.1);
   EXPECT_EQ(opened.get_tile_voxels(), 32u);
-  EXPECT_EQ(opened.get_num_nodes(), known);
+  EXPECT_EQ(opened.get_num_known_voxels(), known);
   EXPECT_TRUE(opened.query(points.row(1).transpose()).has_value());
 }
 
@@ -508,7 +508,7 @@ TEST(OutofcoreTileMapper, ClearRemovesOnlyItsTilesAndKeepsMetadata) {
   for (const std::string& f : foreign) EXPECT_EQ(read_bytes((fs::path(dir) / f).string()).size(), 4u) << f;
   EXPECT_TRUE(fs::is_directory(fs::path(dir) / "tile_9_9_9.iwt.d"));
   EXPECT_TRUE(fs::exists(fs::path(dir) / "iwlomap_map.meta"));
-  EXPECT_EQ(map.get_num_nodes(), 0u);
+  EXPECT_EQ(map.get_num_known_voxels(), 0u);
   EXPECT_EQ(map.get_num_tiles(), 0u);
   EXPECT_EQ(map.get_num_skipped_points(), 0u);
   EXPECT_EQ(map.get_occupied_voxels(0.0).rows(), 0);
@@ -571,14 +571,14 @@ TEST(OutofcoreTileMapper, StreamsTilesOnDiskWithoutFillingCache) {
   OutofcoreTileMapper map(dir, tile_test::kResolution, tile_test::kTileSize, 2);
   ASSERT_GT(map.get_num_tiles(), 4u);
   ProbabilityUpdater ram = ram_after_steps(6);
-  EXPECT_EQ(map.get_num_nodes(), ram.get_num_nodes());  // from the headers, no tile read
+  EXPECT_EQ(map.get_num_known_voxels(), ram.get_num_known_voxels());  // from the headers, no tile read
   EXPECT_EQ(map.get_num_resident_tiles(), 0u);
   EXPECT_EQ(snapshot(map), snapshot(ram));
   EXPECT_EQ(sorted_rows(map.get_occupied_voxels()), sorted_rows(ram.get_occupied_voxels()));
   EXPECT_EQ(map.get_num_resident_tiles(), 0u);
   EXPECT_EQ(map.get_peak_resident_tiles(), 0u);
   const MemoryStats m = map.get_memory_usage();
-  EXPECT_EQ(m.num_nodes, ram.get_num_nodes());
+  EXPECT_EQ(m.num_nodes, ram.get_num_known_voxels());
   EXPECT_LT(m.memory_mb, ram.get_memory_usage().memory_mb);
 }
 
@@ -610,7 +610,7 @@ TEST(OutofcoreTileMapper, KeepsMapWhenMovedAndThrowsLogicErrorWhenMovedFrom) {
   OutofcoreTileMapper a(tmp.sub("a"), tile_test::kResolution, tile_test::kTileSize, 4);
   tile_test::apply_step(a, 1);
   OutofcoreTileMapper b(std::move(a));
-  EXPECT_THROW((void)a.get_num_nodes(), std::logic_error);  // NOLINT(bugprone-use-after-move)
+  EXPECT_THROW((void)a.get_num_known_voxels(), std::logic_error);  // NOLINT(bugprone-use-after-move)
   EXPECT_THROW((void)a.query(Eigen::Vector3d::Zero()), std::logic_error);
   ProbabilityUpdater ram = ram_after_steps(1);
   expect_same_map(b, ram);

@@ -135,7 +135,7 @@ TEST(Progress, ThrowingCallbackCancelsRaysButNotTheUpdate) {
       if (r.stage == ProgressStage::kCastingRays && r.done > 0) throw std::runtime_error("cancelled");
     });
     EXPECT_THROW(map.insert_scan(scan().origin, scan().points, scan().intensities, -1.0), std::runtime_error);
-    EXPECT_EQ(map.get_num_nodes(), 0u) << "a cancelled scan changes nothing";
+    EXPECT_EQ(map.get_num_known_voxels(), 0u) << "a cancelled scan changes nothing";
 
     int heard = 0;
     map.set_progress_callback([&heard](const ProgressReport& r) {

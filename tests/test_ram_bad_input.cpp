@@ -53,7 +53,7 @@ class ProbabilityUpdaterBadInput : public ::testing::Test {
   }
   void expect_unchanged() {
     EXPECT_EQ(snapshot(map_), before_);
-    EXPECT_EQ(map_.get_num_nodes(), 2u);
+    EXPECT_EQ(map_.get_num_known_voxels(), 2u);
     EXPECT_EQ(map_.get_num_skipped_points(), 0u);
   }
   ProbabilityUpdater map_{0.05};
@@ -118,7 +118,7 @@ TEST(ProbabilityUpdater, AppliesRowsThatNeedTheDetailedCheck) {
   ProbabilityUpdater map(r);
   map.batch_update_iwlo(rows({{0.01, 0.01, 0.01}, {far, 0.01, -far}, {0.2, 0.2, 0.2}}), values({200, 200, kNaN}),
                         {true, true, true}, values({-0.0, 1.0, 1.0}));
-  EXPECT_EQ(map.get_num_nodes(), 2u);
+  EXPECT_EQ(map.get_num_known_voxels(), 2u);
   EXPECT_EQ(map.get_num_skipped_points(), 1u);
   const auto zero_weight = map.query(Eigen::Vector3d(0.01, 0.01, 0.01));
   ASSERT_TRUE(zero_weight.has_value());

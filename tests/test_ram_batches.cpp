@@ -102,7 +102,7 @@ void expect_map_matches_reference(const ProbabilityUpdater& map, const DenseRefe
 
   const Snapshot s = snapshot(map);
   EXPECT_EQ(s.size(), ref.known());
-  EXPECT_EQ(map.get_num_nodes(), ref.known());
+  EXPECT_EQ(map.get_num_known_voxels(), ref.known());
   mismatches = 0;
   for (const auto& [k, v] : s) {
     const bool in_box = k.x >= lo && k.x < hi && k.y >= lo && k.y < hi && k.z >= lo && k.z < hi;
@@ -279,10 +279,10 @@ TEST(ProbabilityUpdater, GivesTheSameMapWhenAScatteredBatchIsAppliedWholeOrInSli
       for (Eigen::Index from = 0; from < n; from += 15000) apply(sliced, from, std::min<Eigen::Index>(15000, n - from));
     }
     EXPECT_EQ(whole.get_num_skipped_points(), sliced.get_num_skipped_points());
-    EXPECT_EQ(whole.get_num_nodes(), sliced.get_num_nodes());
-    EXPECT_EQ(whole.get_num_nodes(), disk.get_num_nodes());
+    EXPECT_EQ(whole.get_num_known_voxels(), sliced.get_num_known_voxels());
+    EXPECT_EQ(whole.get_num_known_voxels(), disk.get_num_known_voxels());
     const std::vector<Visit> a = visits(whole), b = visits(sliced);
-    ASSERT_EQ(a.size(), whole.get_num_nodes());
+    ASSERT_EQ(a.size(), whole.get_num_known_voxels());
     EXPECT_TRUE(a == b) << "the maps differ in values or in the order they are visited in";
     std::vector<Visit> c = visits(disk), sorted_a = a;
     std::sort(c.begin(), c.end());
@@ -351,7 +351,7 @@ TEST(ProbabilityUpdater, StoresAndQueriesWhenHundredKilometresAway) {
                                     {-100000.0, 100000.0, -99999.951},
                                     {100000.049, 100000.001, -100000.02}});
   map.batch_update_iwlo(pts, values({255, 255, 255}), {true, true, true});
-  ASSERT_EQ(map.get_num_nodes(), 3u);
+  ASSERT_EQ(map.get_num_known_voxels(), 3u);
   const IwloParams p;
   const double l255 = static_cast<double>(single_observation(255.0, true, p));
   for (Eigen::Index i = 0; i < pts.rows(); ++i) {
@@ -373,7 +373,7 @@ TEST(ProbabilityUpdater, StoresAndQueriesWhenHundredKilometresAway) {
   // A scan far away: origin at a voxel centre, a hit 1 m along +y (20 voxels).
   const Eigen::Vector3d origin = key_to_center(VoxelKey{-2000000, 2000000, 1000}, r);
   map.insert_scan(origin, rows({{origin.x(), origin.y() + 1.0, origin.z()}}), values({200}));
-  EXPECT_EQ(map.get_num_nodes(), 3u + 21u);
+  EXPECT_EQ(map.get_num_known_voxels(), 3u + 21u);
   EXPECT_EQ(state_at(map, -2000000, 2000010, 1000), std::make_pair(-3.0, 1u));
   EXPECT_GT(state_at(map, -2000000, 2000020, 1000).first, 0.0);
 }
@@ -435,7 +435,7 @@ int run_out_of_memory_scenario(std::size_t margin) {
   // and the applied rows are a prefix of the batch.
   std::size_t visited = 0;
   map.for_each_voxel([&visited](const VoxelKey&, const VoxelState&) { ++visited; });
-  if (visited != static_cast<std::size_t>(n) || map.get_num_nodes() != static_cast<std::size_t>(n))
+  if (visited != static_cast<std::size_t>(n) || map.get_num_known_voxels() != static_cast<std::size_t>(n))
     return kMapInconsistent;
   bool in_prefix = true;
   for (Eigen::Index i = 0; i < n; ++i) {

@@ -36,10 +36,10 @@ TEST(ProbabilityUpdater, ForgetsVoxelsAndSkipsAndKeepsParamsWhenCleared) {
   map.set_params(custom);
   map.batch_update_iwlo(rows({{0.05, 0.05, 0.05}, {kNaN, 0, 0}, {5.0, -5.0, 1.0}}), values({200, 1, 200}),
                         {true, true, true});
-  ASSERT_EQ(map.get_num_nodes(), 2u);
+  ASSERT_EQ(map.get_num_known_voxels(), 2u);
   ASSERT_EQ(map.get_num_skipped_points(), 1u);
   map.clear();
-  EXPECT_EQ(map.get_num_nodes(), 0u);
+  EXPECT_EQ(map.get_num_known_voxels(), 0u);
   EXPECT_EQ(map.get_num_skipped_points(), 0u);
   EXPECT_TRUE(snapshot(map).empty());
   EXPECT_FALSE(map.query(Eigen::Vector3d(0.05, 0.05, 0.05)).has_value());
@@ -48,7 +48,7 @@ TEST(ProbabilityUpdater, ForgetsVoxelsAndSkipsAndKeepsParamsWhenCleared) {
   EXPECT_EQ(map.get_params().sharpness, 0.9);
   // Usable again after clear().
   map.batch_update_iwlo(rows({{0.05, 0.05, 0.05}}), values({200}), {true});
-  EXPECT_EQ(map.get_num_nodes(), 1u);
+  EXPECT_EQ(map.get_num_known_voxels(), 1u);
 }
 
 TEST(ProbabilityUpdater, ReportsMemoryWhenBlocksAllocated) {
@@ -76,7 +76,7 @@ TEST(ProbabilityUpdater, ReportsMemoryWhenBlocksAllocated) {
   map.batch_update_iwlo(b, Eigen::VectorXd::Constant(64, 200.0), std::vector<bool>(64, true));
   const MemoryStats many = map.get_memory_usage();
   EXPECT_EQ(many.num_nodes, 128u);
-  EXPECT_EQ(many.num_leaf_nodes, map.get_num_nodes());
+  EXPECT_EQ(many.num_leaf_nodes, map.get_num_known_voxels());
   // 16 full cells and 64 cells of one known voxel each: efficiency = 128 / (80 * 4).
   EXPECT_DOUBLE_EQ(many.memory_efficiency, 128.0 / (80.0 * 4.0));
   EXPECT_GT(many.memory_efficiency, 0.0);
@@ -99,13 +99,13 @@ TEST(ProbabilityUpdater, StartsEmptyWhenMemoryOfDestroyedMapsIsReused) {
     {
       ProbabilityUpdater old(0.1);
       old.batch_update_iwlo(big, Eigen::VectorXd::Constant(big.rows(), 250.0), std::vector<bool>(200000, true));
-      ASSERT_GT(old.get_num_nodes(), 190000u);
+      ASSERT_GT(old.get_num_known_voxels(), 190000u);
     }
     ProbabilityUpdater fresh(0.1);
-    EXPECT_EQ(fresh.get_num_nodes(), 0u);
+    EXPECT_EQ(fresh.get_num_known_voxels(), 0u);
     fresh.batch_update_iwlo(big.topRows(100), Eigen::VectorXd::Constant(100, 10.0), std::vector<bool>(100, false));
     const Snapshot s = snapshot(fresh);
-    EXPECT_EQ(s.size(), fresh.get_num_nodes());
+    EXPECT_EQ(s.size(), fresh.get_num_known_voxels());
     std::map<VoxelKey, std::uint32_t> expected;
     for (Eigen::Index i = 0; i < 100; ++i) ++expected[world_to_key(big.row(i).transpose(), 0.1)];
     ASSERT_EQ(s.size(), expected.size());
@@ -134,13 +134,13 @@ TEST(ProbabilityUpdater, KeepsAllVoxelsWhenPruned) {
   // Updates only allocate blocks they write, so no block is empty and nothing is freed.
   EXPECT_EQ(map.prune(), 0u);
   EXPECT_EQ(snapshot(map), before);
-  EXPECT_EQ(map.get_num_nodes(), before.size());
+  EXPECT_EQ(map.get_num_known_voxels(), before.size());
   const MemoryStats mem_after = map.get_memory_usage();
   EXPECT_LT(mem_after.memory_mb, mem_before.memory_mb);  // the scan scratch was given back
   EXPECT_EQ(mem_after.num_nodes, mem_before.num_nodes);
   // The map still works after pruning.
   map.batch_update_iwlo(rows({{0.01, 0.02, 0.03}}), values({200}), {true});
-  EXPECT_EQ(map.get_num_nodes(), before.size());
+  EXPECT_EQ(map.get_num_known_voxels(), before.size());
 }
 
 TEST(ProbabilityUpdater, KeepsMapWhenMoveConstructed) {
@@ -150,9 +150,9 @@ TEST(ProbabilityUpdater, KeepsMapWhenMoveConstructed) {
   ProbabilityUpdater b(std::move(a));
   EXPECT_EQ(snapshot(b), s);
   EXPECT_EQ(b.get_resolution(), 0.1);
-  EXPECT_EQ(b.get_num_nodes(), 2u);
+  EXPECT_EQ(b.get_num_known_voxels(), 2u);
   // The moved-from object refuses to work.
-  EXPECT_THROW((void)a.get_num_nodes(), std::logic_error);  // NOLINT(bugprone-use-after-move)
+  EXPECT_THROW((void)a.get_num_known_voxels(), std::logic_error);  // NOLINT(bugprone-use-after-move)
   EXPECT_THROW((void)a.get_resolution(), std::logic_error);
   EXPECT_THROW((void)a.query(Eigen::Vector3d::Zero()), std::logic_error);
   EXPECT_THROW(a.batch_update_iwlo(rows({{0, 0, 0}}), values({1}), {true}), std::logic_error);
@@ -166,7 +166,7 @@ TEST(ProbabilityUpdater, KeepsMapWhenMoveConstructed) {
   EXPECT_THROW(a.prune(), std::logic_error);
   // Assignment revives a moved-from object.
   a = ProbabilityUpdater(0.2);
-  EXPECT_EQ(a.get_num_nodes(), 0u);
+  EXPECT_EQ(a.get_num_known_voxels(), 0u);
   EXPECT_EQ(a.get_resolution(), 0.2);
 }
 
@@ -180,7 +180,7 @@ TEST(ProbabilityUpdater, KeepsMapWhenMoveAssigned) {
   EXPECT_EQ(snapshot(b), s);
   EXPECT_EQ(b.get_resolution(), 0.1);
   EXPECT_FALSE(b.query(Eigen::Vector3d(7.0, 7.0, 7.0)).has_value());
-  EXPECT_THROW((void)a.get_num_nodes(), std::logic_error);  // NOLINT(bugprone-use-after-move)
+  EXPECT_THROW((void)a.get_num_known_voxels(), std::logic_error);  // NOLINT(bugprone-use-after-move)
   EXPECT_THROW(a.batch_update_iwlo(rows({{0, 0, 0}}), values({1}), {true}), std::logic_error);
 }
 
@@ -220,7 +220,7 @@ TEST(ProbabilityUpdater, ReportsRamWithoutPersistenceWhenQueried) {
   EXPECT_NO_THROW(map.flush());
   EXPECT_NO_THROW(map.preload_region(Eigen::Vector3d(-1, -1, -1), Eigen::Vector3d(1, 1, 1)));
   EXPECT_EQ(map.get_disk_usage(), 0u);
-  EXPECT_EQ(map.get_num_nodes(), 1u);
+  EXPECT_EQ(map.get_num_known_voxels(), 1u);
 }
 
 }  // namespace

@@ -58,7 +58,7 @@ TEST(ProbabilityUpdaterInsertScan, UpdatesEachVoxelOnceWhenRaysShareVoxels) {
   EXPECT_EQ(state_at(map, 3, 0, 0), std::make_pair(l200, 1u));
   EXPECT_EQ(state_at(map, 0, -4, 0),
             std::make_pair(static_cast<double>(single_observation(100.0, true, IwloParams{})), 1u));
-  EXPECT_EQ(map.get_num_nodes(), 10u);
+  EXPECT_EQ(map.get_num_known_voxels(), 10u);
   EXPECT_FALSE(map.query(Eigen::Vector3d(6.5, 0.5, 0.5)).has_value());
   EXPECT_FALSE(map.query(Eigen::Vector3d(0.5, 0.5, 1.5)).has_value());
 
@@ -81,7 +81,7 @@ TEST(ProbabilityUpdaterInsertScan, TakesLargestIntensityWhenSeveralHitsInOneVoxe
   // Neither the first nor the last hit's intensity, and not three observations.
   EXPECT_NE(s->log_odds, static_cast<double>(single_observation(80.0, true, p)));
   EXPECT_NE(s->log_odds, static_cast<double>(single_observation(150.0, true, p)));
-  EXPECT_EQ(map.get_num_nodes(), 6u);  // (0..4, 0, 0) free + the hit
+  EXPECT_EQ(map.get_num_known_voxels(), 6u);  // (0..4, 0, 0) free + the hit
 }
 
 TEST(ProbabilityUpdaterInsertScan, FreeObservationWhenHitIntensityAtOrBelowThreshold) {
@@ -89,7 +89,7 @@ TEST(ProbabilityUpdaterInsertScan, FreeObservationWhenHitIntensityAtOrBelowThres
   map.insert_scan(Eigen::Vector3d(0.5, 0.5, 0.5), rows({{0.5, 0.5, 4.5}, {0.5, 2.5, 0.5}}), values({35, 20}));
   for (int z = 0; z <= 4; ++z) EXPECT_EQ(state_at(map, 0, 0, z), std::make_pair(-3.0, 1u)) << "z = " << z;
   for (int y = 1; y <= 2; ++y) EXPECT_EQ(state_at(map, 0, y, 0), std::make_pair(-3.0, 1u)) << "y = " << y;
-  EXPECT_EQ(map.get_num_nodes(), 7u);
+  EXPECT_EQ(map.get_num_known_voxels(), 7u);
   EXPECT_EQ(map.get_occupied_voxels(0.0).rows(), 7);
   EXPECT_EQ(map.get_occupied_voxels(0.5).rows(), 0);
 }
@@ -106,7 +106,7 @@ TEST(ProbabilityUpdaterInsertScan, ClipsFreeRayWithoutHitWhenBeyondMaxRange) {
   EXPECT_EQ(state_at(map, 0, 1, 0), std::make_pair(-3.0, 1u));
   EXPECT_EQ(state_at(map, 0, 2, 0).second, 1u);
   EXPECT_GT(state_at(map, 0, 2, 0).first, 0.0);
-  EXPECT_EQ(map.get_num_nodes(), 6u);
+  EXPECT_EQ(map.get_num_known_voxels(), 6u);
   // Without a limit (max_range <= 0) the same far point is a hit.
   map.insert_scan(Eigen::Vector3d(0.5, 0.5, 0.5), rows({{10.5, 0.5, 0.5}}), values({200}), -1.0);
   EXPECT_TRUE(map.query(Eigen::Vector3d(10.5, 0.5, 0.5)).has_value());
@@ -119,7 +119,7 @@ TEST(ProbabilityUpdaterInsertScan, SkipsAndCountsWhenPointsNotFinite) {
                   values({200, 200, 200, kNaN}));
   EXPECT_EQ(map.get_num_skipped_points(), 3u);  // NaN x, infinite y, NaN intensity
   // Only the second point: (0, 0, 0), (1, 0, 0) free, (2, 0, 0) hit.
-  EXPECT_EQ(map.get_num_nodes(), 3u);
+  EXPECT_EQ(map.get_num_known_voxels(), 3u);
   EXPECT_TRUE(map.query(Eigen::Vector3d(2.5, 0.5, 0.5)).has_value());
   EXPECT_FALSE(map.query(Eigen::Vector3d(0.5, 0.5, 1.5)).has_value());
   // Batches count their skipped points into the same total.
@@ -221,7 +221,7 @@ TEST(ProbabilityUpdaterInsertScan, MatchesRayReferenceWhenRandomScans) {
         ADD_FAILURE() << "scan " << scan << ": voxel (" << k.x << ", " << k.y << ", " << k.z << ") differs";
     }
     EXPECT_EQ(mismatches, 0u);
-    EXPECT_EQ(map.get_num_nodes(), want.size());
+    EXPECT_EQ(map.get_num_known_voxels(), want.size());
   }
 }
 
@@ -255,7 +255,7 @@ TEST(ProbabilityUpdaterThreads, InsertScanIsBitIdenticalForAnyThreadCount) {
     for (const auto& s : scans) m.insert_scan(s.origin, s.points, s.intensities, 18.0);
     const auto state = snapshot(m);
     EXPECT_EQ(m.get_num_skipped_points(), 1u);
-    EXPECT_EQ(m.get_num_nodes(), state.size());
+    EXPECT_EQ(m.get_num_known_voxels(), state.size());
     std::vector<VoxelKey> order;  // iteration order must not depend on the thread count either
     m.for_each_voxel([&](const VoxelKey& k, const VoxelState&) { order.push_back(k); });
     if (threads == 1) {
@@ -294,7 +294,7 @@ TEST(ProbabilityUpdaterThreads, OutOfRangePointThrowsTheFirstErrorAndKeepsTheMap
   } catch (const std::out_of_range& e) {
     EXPECT_NE(std::string(e.what()).find("point 100 "), std::string::npos) << e.what();
   }
-  EXPECT_EQ(m.get_num_nodes(), 0u);
+  EXPECT_EQ(m.get_num_known_voxels(), 0u);
 }
 
 }  // namespace

@@ -331,7 +331,7 @@ TEST(SonarImageProjector, IntegrateUpdatesTheMapAndChecksItsResolution) {
   ProbabilityUpdater map(0.05);
   const SonarObservations obs =
       projector.integrate(map, make_sonar_image_view(p.image), p.geometry, Eigen::Isometry3d::Identity());
-  EXPECT_EQ(map.get_num_nodes(), obs.size());
+  EXPECT_EQ(map.get_num_known_voxels(), obs.size());
   const auto hit = map.query(Eigen::Vector3d(0.495, 0.0, 0.0));
   ASSERT_TRUE(hit.has_value());
   EXPECT_GT(hit->probability, 0.5);

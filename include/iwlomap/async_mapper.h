@@ -46,7 +46,10 @@ class AsyncMapper {
   [[nodiscard]] IMapperBackend& map();
   [[nodiscard]] Eigen::MatrixXd get_occupied_voxels(double min_probability = 0.5);
   [[nodiscard]] std::optional<VoxelState> query(const Eigen::Vector3d& point);
+  /// The map's get_num_nodes(), after the queue drains.
   [[nodiscard]] std::size_t get_num_nodes();
+  /// The map's get_num_known_voxels(), after the queue drains.
+  [[nodiscard]] std::size_t get_num_known_voxels();
 
   /// True while a scan is queued or being integrated.
   [[nodiscard]] bool is_running() const { return job_.is_running(); }

@@ -96,8 +96,13 @@ class IMapperBackend {
   [[nodiscard]] virtual MemoryStats get_memory_usage() const = 0;
   /// Voxel edge length in metres.
   [[nodiscard]] virtual double get_resolution() const = 0;
-  /// Number of known voxels.
+  /// Number of nodes of the backend's storage, as the reference API counts them: for the voxel
+  /// grids (RAM, Disk) the known voxels; for the OctoMap backend the octree's nodes (inner nodes
+  /// and leaves, OcTree::size()). For the known voxels of any backend, get_num_known_voxels().
   [[nodiscard]] virtual size_t get_num_nodes() const = 0;
+  /// Number of known voxels (observed or set at least once). The default returns get_num_nodes(),
+  /// which is that count for a voxel grid; a backend whose nodes are not voxels overrides it.
+  [[nodiscard]] virtual size_t get_num_known_voxels() const { return get_num_nodes(); }
   /// Forgets every voxel (parameters are kept).
   virtual void clear() = 0;
   /// "RAM", "Disk" or "OctoMap".

@@ -505,7 +505,7 @@ Eigen::MatrixXd DistributedMapper::gather_occupied_voxels(double min_probability
 }
 
 std::size_t DistributedMapper::num_nodes() const {
-  const std::uint64_t mine = local_->get_num_nodes();
+  const std::uint64_t mine = local_->get_num_known_voxels();
   std::uint64_t total = 0;
   MPI_Allreduce(&mine, &total, 1, MPI_UINT64_T, MPI_SUM, comm_);
   return static_cast<std::size_t>(total);

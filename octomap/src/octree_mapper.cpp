@@ -455,7 +455,8 @@ MemoryStats OctreeMapper::get_memory_usage() const {
 }
 
 double OctreeMapper::get_resolution() const { return impl().resolution; }
-size_t OctreeMapper::get_num_nodes() const { return impl().known; }
+size_t OctreeMapper::get_num_nodes() const { return impl().tree.size(); }
+size_t OctreeMapper::get_num_known_voxels() const { return impl().known; }
 size_t OctreeMapper::get_num_skipped_points() const { return impl().skipped; }
 
 void OctreeMapper::clear() {

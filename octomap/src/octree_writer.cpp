@@ -70,7 +70,7 @@ OctreeStream::OctreeStream(const IMapperBackend& map, FileFormat format, double 
     : format_(format) {
   const ProbabilityAbove occupied(occupied_threshold);
   if (format_ == FileFormat::kFull) {
-    local_.reserve(std::min<std::size_t>(map.get_num_nodes(), std::size_t{1} << 32));
+    local_.reserve(std::min<std::size_t>(map.get_num_known_voxels(), std::size_t{1} << 32));
     values_.reserve(local_.capacity());
   }
   BackendAccess::for_each_known_block(map, [&](const VoxelKey& block, const std::uint16_t* index,

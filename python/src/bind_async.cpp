@@ -63,6 +63,7 @@ void bind_async(py::module_& m) {
           },
           py::arg("point"))
       .def("get_num_nodes", &AsyncMapper::get_num_nodes, py::call_guard<py::gil_scoped_release>())
+      .def("get_num_known_voxels", &AsyncMapper::get_num_known_voxels, py::call_guard<py::gil_scoped_release>())
       .def("is_running", &AsyncMapper::is_running)
       .def("dropped", &AsyncMapper::dropped)
       .def("terminate", &AsyncMapper::terminate, py::call_guard<py::gil_scoped_release>());

@@ -317,7 +317,9 @@ void bind_backend(py::module_& m) {
       .def("get_resolution", [](Backend& map) { return unlocked(map, [&] { return map.get_resolution(); }); },
            "voxel edge in metres")
       .def("get_num_nodes", [](Backend& map) { return unlocked(map, [&] { return map.get_num_nodes(); }); },
-           "known voxels")
+           "nodes of the storage: known voxels (RAM, Disk), octree nodes (OctoMap)")
+      .def("get_num_known_voxels",
+           [](Backend& map) { return unlocked(map, [&] { return map.get_num_known_voxels(); }); }, "known voxels")
       .def("clear", [](Backend& map) { unlocked(map, [&] { map.clear(); }); })
       .def("get_backend_type", [](Backend& map) { return unlocked(map, [&] { return map.get_backend_type(); }); })
       .def("flush", [](Backend& map) { unlocked(map, [&] { map.flush(); }); },
@@ -469,7 +471,7 @@ void bind_backend(py::module_& m) {
           "off. An exception it raises while rays are cast cancels the scan (map unchanged); later ones are raised "
           "once the call is done. Calling into the map from it raises RuntimeError.")
       .def("__repr__", [](Backend& map) {
-        return "<iwlomap " + map.get_backend_type() + " map, " + std::to_string(map.get_num_nodes()) +
+        return "<iwlomap " + map.get_backend_type() + " map, " + std::to_string(map.get_num_known_voxels()) +
                " known voxels at " + std::to_string(map.get_resolution()) + " m>";
       });
 

@@ -140,7 +140,7 @@ def test_import_octomap_without_a_map_opens_the_file_at_its_resolution(tmp_path)
     into = iwlomap.ProbabilityUpdater(0.3)
     assert iwlomap.import_octomap(tmp_path / "m.ot", into) is None
     np.testing.assert_array_equal(opened.get_occupied_voxels(0.5), into.get_occupied_voxels(0.5))
-    assert opened.get_num_nodes() == m.get_num_nodes()
+    assert opened.get_num_known_voxels() == m.get_num_known_voxels()
 
 
 def test_help_names_types_as_users_import_them():

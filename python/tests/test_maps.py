@@ -111,15 +111,15 @@ def test_backend_interface_methods(tmp_path, scan):
     assert occupied.shape[1] == 4 and occupied.dtype == np.float64 and occupied.flags.c_contiguous
     assert (occupied[:, 3] > 0.7).all()
     assert m.get_resolution() == 0.2 and m.get_backend_type() == "RAM"
-    assert m.get_num_nodes() == len(m.get_voxels()[2])
+    assert m.get_num_known_voxels() == len(m.get_voxels()[2])
     seen = []
     m.for_each_voxel(lambda k, s: seen.append((k.x, k.y, k.z, s.log_odds, s.count)))
-    assert len(seen) == m.get_num_nodes()
+    assert len(seen) == m.get_num_known_voxels()
     state = m.query(occupied[0, :3])
     assert state.probability == pytest.approx(occupied[0, 3]) and state.count >= 1
     assert m.query([1e3, 1e3, 1e3]) is None
     usage = m.get_memory_usage()
-    assert usage.num_nodes == m.get_num_nodes() and usage.memory_mb > 0
+    assert usage.num_nodes == m.get_num_known_voxels() and usage.memory_mb > 0
     assert m.supports(iwlomap.BackendFeature.kClone) and not m.supports_persistence()
     c = m.clone()
     assert np.array_equal(voxel_table(c), voxel_table(m))
@@ -141,7 +141,7 @@ def test_backend_interface_methods(tmp_path, scan):
     m.preload_region([0, 0, 0], [1, 1, 1])
     assert m.get_disk_usage() == 0
     m.clear()
-    assert m.get_num_nodes() == 0
+    assert m.get_num_known_voxels() == 0
 
 
 def test_threads_give_the_same_map(scan):
@@ -259,7 +259,7 @@ def test_a_visitor_calling_into_its_map_raises_instead_of_waiting_forever(tmp_pa
     seen = []
 
     def visit(key, state):
-        other.get_num_nodes()  # another map: allowed
+        other.get_num_known_voxels()  # another map: allowed
         seen.append(key)
         m.query([0.0, 0.0, 0.0])
 
@@ -268,7 +268,7 @@ def test_a_visitor_calling_into_its_map_raises_instead_of_waiting_forever(tmp_pa
     assert len(seen) == 1
     with pytest.raises(RuntimeError, match="visitor may not call into the map"):
         m.for_each_voxel(lambda k, s: m.for_each_voxel(lambda k2, s2: None))
-    assert m.get_num_nodes() > 0  # the map is usable after
+    assert m.get_num_known_voxels() > 0  # the map is usable after
 
 
 def test_colour_means():
@@ -289,7 +289,7 @@ def test_entropy_and_box(scan):
     m.insert_scan(origin, points, intensities)
     box = iwlomap.known_voxel_box(m)
     e = iwlomap.box_entropy(m, box)
-    assert e.known_voxels == m.get_num_nodes()
+    assert e.known_voxels == m.get_num_known_voxels()
     assert e.unknown_voxels == iwlomap.count_unknown_voxels(m, box)
     assert e.known_bits == pytest.approx(iwlomap.map_entropy_bits(m))
     assert iwlomap.occupancy_entropy_bits(0.5) == 1.0
@@ -305,7 +305,7 @@ def test_async_mapper_gives_the_same_map(scan):
         direct.insert_scan(origin + shift, points + shift, intensities)
         a.integrate(origin + shift, points + shift, intensities)
     a.sync()
-    assert a.get_num_nodes() == direct.get_num_nodes()
+    assert a.get_num_known_voxels() == direct.get_num_known_voxels()
     assert np.array_equal(a.get_occupied_voxels(0.7), direct.get_occupied_voxels(0.7))
     assert a.query(points[0]) is not None and a.dropped() == 0
     a.terminate()
@@ -348,7 +348,7 @@ def test_memory_limit_raises_memory_limit_error(scan):
         with pytest.raises(iwlomap.MemoryLimitError) as e:
             m.insert_scan(origin, points, intensities)
         assert isinstance(e.value, MemoryError) and e.value.needed > 0 and e.value.limit > 0
-        assert m.get_num_nodes() == 0  # refused before changing the map
+        assert m.get_num_known_voxels() == 0  # refused before changing the map
     finally:
         iwlomap.set_map_memory_limit(old)
 
@@ -367,7 +367,7 @@ def test_octomap_files_round_trip(tmp_path, scan):
     iwlomap.export_octomap(m, str(tmp_path / "map.bt"), 0.8)
     o = iwlomap.OctreeMapper(0.2)
     o.load_from_file(tmp_path / "map.bt")
-    assert o.get_num_nodes() > 0 and o.get_prob_hit() == 0.7
+    assert o.get_num_known_voxels() > 0 and o.get_prob_hit() == 0.7
     o.update_point([0.1, 0.1, 0.1], True)
     o.batch_update(points[:10], np.ones(10, bool))
     o.batch_update_with_log_odds(points[:10], np.full(10, 0.5))
@@ -402,7 +402,7 @@ def test_the_rest_of_the_surface(tmp_path, scan):
                               iwlomap.QueueFullPolicy.kDropOldest)
     seq.integrate(origin, points, intensities)
     seq.sync()
-    assert seq.get_num_nodes() > 0
+    assert seq.get_num_known_voxels() > 0
     c = iwlomap.VoxelColorMeans(0.2)
     c.add_scan(origin, points[:100], np.full(100, 200.0), np.full((100, 3), 7, np.uint8), LIDAR)
     assert c.resolution() == 0.2 and c.size() > 0 and c.memory_bytes() > 0
@@ -451,7 +451,7 @@ def test_disk_map_opened_from_its_directory_alone_takes_its_stored_parameters(tm
     made.flush()
     del made
     opened = iwlomap.OutofcoreTileMapper(tmp_path / "map")
-    assert opened.get_resolution() == 0.1 and opened.get_num_nodes() == 2
+    assert opened.get_resolution() == 0.1 and opened.get_num_known_voxels() == 2
     fresh = iwlomap.OutofcoreTileMapper(tmp_path / "new")
     assert fresh.get_resolution() == 0.05
 

@@ -47,16 +47,16 @@ def test_raising_callback_cancels_the_scan():
     m.set_progress_callback(cancel)
     with pytest.raises(KeyboardInterrupt):
         m.insert_scan(origin, pts, inten)
-    assert m.get_num_nodes() == 0
+    assert m.get_num_known_voxels() == 0
 
 
 def test_call_into_the_map_from_the_callback_raises():
     origin, pts, inten = fan()
     m = iwlomap.ProbabilityUpdater(0.1)
-    m.set_progress_callback(lambda stage, done, total: m.get_num_nodes())
+    m.set_progress_callback(lambda stage, done, total: m.get_num_known_voxels())
     with pytest.raises(RuntimeError):
         m.insert_scan(origin, pts, inten)
-    assert m.get_num_nodes() == 0, "the call was refused while rays were cast: nothing changed"
+    assert m.get_num_known_voxels() == 0, "the call was refused while rays were cast: nothing changed"
 
 
 @pytest.mark.skipif(not hasattr(iwlomap, "export_octomap"), reason="built without the OctoMap layer")

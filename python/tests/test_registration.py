@@ -115,7 +115,7 @@ def test_registered_sonar_mapper_by_submaps():
         assert [s.first_ping for s in submaps] == [0, 3, 6]
         assert not submaps[0].registered  # nothing to register against yet
         assert all(p.shape == (4, 4) for s in submaps for p in s.integrated_poses)
-        assert m.get_num_nodes() > 0 and rm.correction().shape == (4, 4)
+        assert m.get_num_known_voxels() > 0 and rm.correction().shape == (4, 4)
         outputs.append(([p for s in submaps for p in s.integrated_poses], m.get_occupied_voxels(0.5)))
     for a, b in zip(outputs[0][0], outputs[1][0]):
         assert np.array_equal(a, b)

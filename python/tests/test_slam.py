@@ -100,13 +100,13 @@ def test_sonar_pose_graph_mapper_cuts_submaps_at_turns_and_maps_at_the_end():
     gm = iwlomap.SonarPoseGraphMapper(m, iwlomap.SonarImageProjector(0.05, iwlomap.SonarProjectorParams()), options)
     for p in navigation:
         gm.integrate(p, image, geometry)
-    assert m.get_num_nodes() == 0  # nothing is mapped before finish()
+    assert m.get_num_known_voxels() == 0  # nothing is mapped before finish()
     gm.finish()
     assert [s.pings for s in gm.submaps()] == [4, 2, 4]
     assert [s.first_ping for s in gm.submaps()] == [0, 4, 6]
     summary = gm.summary()
     assert summary.pings == 10 and summary.submaps == 3 and summary.closures_found == 0
-    assert summary.observations > 0 and m.get_num_nodes() > 0
+    assert summary.observations > 0 and m.get_num_known_voxels() > 0
     for a, b in zip(gm.poses(), navigation):
         assert np.allclose(a, b, atol=1e-12)
     with pytest.raises(RuntimeError, match="finish"):

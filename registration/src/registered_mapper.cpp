@@ -29,7 +29,7 @@ RegisteredScan RegisteredMapper::process(Scan&& scan, State& state, const StopTo
   out.initial_guess = state.correction * scan.pose;
   out.integrated_pose = out.initial_guess;
   Eigen::Isometry3d correction = state.correction;
-  if (state.map->get_num_nodes() > 0) {
+  if (state.map->get_num_known_voxels() > 0) {
     stop.throw_if_stopped();
     out.match = ScanMatcher(*state.map, state.options.matcher).match(scan.points, out.initial_guess);
     if (out.match.converged) {

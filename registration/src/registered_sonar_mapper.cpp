@@ -94,7 +94,7 @@ RegisteredSubmap RegisteredSonarMapper::process(Submap&& submap, State& state) {
   out.initial_guess = state.correction * anchor;
   out.correction = state.correction;
 
-  if (state.map->get_num_nodes() > 0) {
+  if (state.map->get_num_known_voxels() > 0) {
     // The submap in the frame of its first ping, with the map's update rule.
     ProbabilityUpdater local(state.map->get_resolution());
     const IwloParams params = state.map->get_params();

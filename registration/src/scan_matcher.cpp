@@ -498,7 +498,7 @@ ScanMatchResult ScanMatcher::match(const Eigen::MatrixXd& scan_sensor, const Eig
   Eigen::Isometry3d start = initial;
   double coarse_yaw_step = 0.0;
   if (options_.coarse) {
-    if (map_.get_num_nodes() == 0) {
+    if (map_.get_num_known_voxels() == 0) {
       result.reason = "the map is empty";
       return result;
     }

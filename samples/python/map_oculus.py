@@ -37,7 +37,7 @@ def main():
         print(f"ping {ping.ping_id}: {ping.beams} beams x {ping.range_bins} bins, {obs.beams_with_return} beams "
               f"with an echo, {obs.occupied_samples} occupied and {obs.free_samples} free samples")
     occupied = m.get_occupied_voxels(m.get_params().occupied_threshold)
-    print(f"{len(pings)} pings: {m.get_num_nodes()} known voxels, {len(occupied)} occupied voxels at "
+    print(f"{len(pings)} pings: {m.get_num_known_voxels()} known voxels, {len(occupied)} occupied voxels at "
           f"{args.resolution} m")
     out = pathlib.Path(args.out)
     iwlomap.write_pcd(out / "map_oculus.pcd", occupied[:, :3], occupied[:, 3])

@@ -35,7 +35,7 @@ def main():
         m.insert_scan(cloud.origin, cloud.points, cloud.intensities)
         print(f"{f.name}: {len(cloud)} points")
     occupied = m.get_occupied_voxels(m.get_params().occupied_threshold)  # (N, 4): x, y, z, p
-    print(f"{len(frames)} frames in {time.perf_counter() - started:.2f} s: {m.get_num_nodes()} known voxels, "
+    print(f"{len(frames)} frames in {time.perf_counter() - started:.2f} s: {m.get_num_known_voxels()} known voxels, "
           f"{len(occupied)} occupied voxels at {args.resolution} m")
     out = pathlib.Path(args.out)
     iwlomap.write_pcd(out / "map_ouster.pcd", occupied[:, :3], occupied[:, 3])

@@ -77,7 +77,7 @@ int run_export(const std::vector<std::string>& argv) {
   show_status(!quiet, "");
   if (quiet) return 0;
   std::cout << "wrote " << *output << " from " << input << " (" << map->get_backend_type() << " map, "
-            << map->get_num_nodes() << " known voxels at " << map->get_resolution() << " m)\n";
+            << map->get_num_known_voxels() << " known voxels at " << map->get_resolution() << " m)\n";
   return 0;
 }
 

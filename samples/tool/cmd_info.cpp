@@ -32,7 +32,7 @@ tiles and the bytes on disk.
 void describe_map(const std::string& path) {
   const auto map = open_map(path);
   const double r = map->get_resolution();
-  std::cout << path << ": " << map->get_backend_type() << " map, " << map->get_num_nodes() << " known voxels at " << r
+  std::cout << path << ": " << map->get_backend_type() << " map, " << map->get_num_known_voxels() << " known voxels at " << r
             << " m, " << map->get_occupied_voxels(map->get_params().occupied_threshold).rows() << " occupied (p > "
             << map->get_params().occupied_threshold << ")\n";
   if (const auto* disk = dynamic_cast<const OutofcoreTileMapper*>(map.get()))

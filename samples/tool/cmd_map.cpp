@@ -358,7 +358,7 @@ int run_map(const std::vector<std::string>& argv) {
     std::cout << "mapped " << inputs.size() << " file(s), " << points << " points ("
               << setup.map->get_num_skipped_points() << " skipped) at " << setup.map->get_resolution() << " m, "
               << setup.map->get_backend_type() << " backend, " << sensor_preset_name(setup.sensor)
-              << " preset: " << setup.map->get_num_nodes() << " known voxels, "
+              << " preset: " << setup.map->get_num_known_voxels() << " known voxels, "
               << occupied.size() << " occupied (p > " << threshold << ")"
               << (colors ? ", " + std::to_string(coloured) + " of them coloured" : std::string()) << " in " << seconds
               << " s; outputs written in " << writing_seconds << " s\n";

@@ -337,7 +337,7 @@ int run_pyramid(const std::vector<std::string>& argv) {
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
   if (!quiet) {
     const GridFrame& f = stack.frame();
-    std::cout << input << ": " << map->get_num_nodes() << " known voxels at " << r << " m; "
+    std::cout << input << ": " << map->get_num_known_voxels() << " known voxels at " << r << " m; "
               << (slice ? "slice at z = " + shortest(*slice) + " m" : std::string("column maximum"))
               << "; base grid " << base.size().x() << " x " << base.size().y() << " cells, cell (0, 0) = voxel ("
               << f.origin.x << ", " << f.origin.y << "), x from " << f.origin.x * r << " m, y from " << f.origin.y * r

@@ -374,7 +374,7 @@ int run_sonar(const std::vector<std::string>& argv) {
     std::cout << "mapped " << pings.size() << " ping(s) from " << inputs.size() << " file(s): " << with_return << " of "
               << beams << " beams with an echo, " << observations << " voxel observations at "
               << setup.map->get_resolution() << " m, " << setup.map->get_backend_type()
-              << " backend: " << setup.map->get_num_nodes() << " known voxels, " << occupied.size()
+              << " backend: " << setup.map->get_num_known_voxels() << " known voxels, " << occupied.size()
               << " occupied (p > " << setup.params.occupied_threshold << ") in " << seconds << " s\n";
     if (!registration_summary.empty()) std::cout << registration_summary << "\n";
     for (const std::string& written : files.paths()) std::cout << "wrote " << written << "\n";

@@ -188,7 +188,7 @@ SlamScanReport PoseGraphMapper::add_scan(const Eigen::Isometry3d& navigation_pos
       target = j;
       break;
     }
-  if (target < submaps_.size() && submaps_[target]->map->get_num_nodes() > 0) {
+  if (target < submaps_.size() && submaps_[target]->map->get_num_known_voxels() > 0) {
     Submap& s = *submaps_[target];
     // ICP from the prior first (the navigation's step error is small); the branch and bound only
     // when that is refused. The map's surface is built once for both.

@@ -49,5 +49,6 @@ Eigen::MatrixXd AsyncMapper::get_occupied_voxels(double min_probability) {
 std::optional<VoxelState> AsyncMapper::query(const Eigen::Vector3d& point) { return map().query(point); }
 
 std::size_t AsyncMapper::get_num_nodes() { return map().get_num_nodes(); }
+std::size_t AsyncMapper::get_num_known_voxels() { return map().get_num_known_voxels(); }
 
 }  // namespace iwlomap

@@ -53,7 +53,7 @@ inline void expect_same_map(IMapperBackend& got, IMapperBackend& want) {
                                             std::to_string(it->second.second));
   }
   EXPECT_EQ(mismatches, 0u);
-  EXPECT_EQ(got.get_num_nodes(), want.get_num_nodes());
+  EXPECT_EQ(got.get_num_known_voxels(), want.get_num_known_voxels());
   for (double p : {0.0, 0.5, 0.7, 0.95})
     EXPECT_EQ(sorted_rows(got.get_occupied_voxels(p)), sorted_rows(want.get_occupied_voxels(p))) << "min_probability " << p;
   const double r = want.get_resolution();

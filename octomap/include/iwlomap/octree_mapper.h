@@ -142,8 +142,10 @@ class OctreeMapper final : public BackendBase {
   /// octree figures walk the whole tree, so they are cached until the next update.
   [[nodiscard]] MemoryStats get_memory_usage() const override;
   [[nodiscard]] double get_resolution() const override;
-  /// Known voxels (as every backend); the octree's node count is in get_memory_usage().
+  /// The octree's nodes, inner nodes and leaves (OcTree::size(), as OctoMap counts them).
   [[nodiscard]] size_t get_num_nodes() const override;
+  /// Known voxels (as every backend).
+  [[nodiscard]] size_t get_num_known_voxels() const override;
   [[nodiscard]] size_t get_num_skipped_points() const override;
   void clear() override;
   [[nodiscard]] std::string get_backend_type() const override { return "OctoMap"; }
