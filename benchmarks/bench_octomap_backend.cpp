@@ -19,7 +19,7 @@
 // Usage: bench_octomap_backend [--reps N] [--resolution R] [--quick]
 
 #include "bench_util.h"
-#include "iwlomap/octree_mapper.h"
+#include "iwlomap/octomap/octree_mapper.h"
 #include "iwlomap/probability_updater.h"
 #include "iwlomap/synthetic_scan.h"
 

@@ -19,7 +19,7 @@
 
 #include "bench_pcd.h"
 #include "bench_util.h"
-#include "iwlomap/octree_mapper.h"
+#include "iwlomap/octomap/octree_mapper.h"
 #include "iwlomap/probability_updater.h"
 #include "iwlomap/sensor_preset.h"
 #include "iwlomap/synthetic_scan.h"

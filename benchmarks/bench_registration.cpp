@@ -40,6 +40,7 @@
 namespace {
 
 using namespace iwlomap;
+using registration::SearchWindow3D;
 using Cloud = pcl::PointCloud<pcl::PointXYZ>;
 constexpr double kDeg = 3.14159265358979323846 / 180.0;
 

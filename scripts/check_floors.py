@@ -36,12 +36,12 @@ PROGRAMS = {"samples", "examples", "benchmarks", "python", "tests"}
 # The layers whose public headers sit in a folder of their name (include/iwlomap/<layer>/); the
 # core's headers sit directly in include/iwlomap/.
 LAYER_HEADER_DIRS = {"filters", "viewer", "registration", "slam", "mpi", "octomap"}
-# The OctoMap layer's headers directly under iwlomap/ (kept at their old path for users).
-OCTOMAP_FLAT_HEADERS = {"octree_mapper.h"}
+# Deprecated forwarding headers of layers directly under iwlomap/ (their old paths), by layer.
+FLAT_HEADERS = {"octree_mapper.h": "octomap", "correlative_scan_matcher.h": "registration"}
 
 # Floors of the core, bottom first.
 FLOORS = {"model": 0, "storage": 1, "integrate": 2, "backends": 3,
-          "async": 4, "grids": 4, "io": 4, "registration": 4, "sonar": 4, "sim": 4}
+          "async": 4, "grids": 4, "io": 4, "sonar": 4, "sim": 4}
 # Public headers without a source file of the same name.
 PUBLIC_FLOORS = {"version.h": 0, "voxel_state.h": 0, "ray_caster.h": 0, "stop_token.h": 0, "hit_statistics.h": 0,
                  "map_memory.h": 1, "background_job.h": 4, "optimizer.h": 4}
@@ -115,8 +115,8 @@ def main():
                     # A public header.
                     if len(target_parts) == 3 and target_parts[1] in LAYER_HEADER_DIRS:
                         target_layer = target_parts[1]
-                    elif len(target_parts) == 2 and target_parts[1] in OCTOMAP_FLAT_HEADERS:
-                        target_layer = "octomap"
+                    elif len(target_parts) == 2 and target_parts[1] in FLAT_HEADERS:
+                        target_layer = FLAT_HEADERS[target_parts[1]]
                     elif len(target_parts) == 2:
                         target_layer = "core"
                     else:

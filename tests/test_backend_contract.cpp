@@ -14,7 +14,7 @@
 #include "iwlomap/probability_updater.h"
 #include "iwlomap/synthetic_scan.h"
 #ifdef IWLOMAP_TEST_WITH_OCTOMAP
-#include "iwlomap/octree_mapper.h"
+#include "iwlomap/octomap/octree_mapper.h"
 #endif
 
 #include <gtest/gtest.h>

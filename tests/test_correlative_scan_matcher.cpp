@@ -2,7 +2,8 @@
 // CorrelativeScanMatcher3D: branch and bound against exhaustive search over the same discretised
 // windows, recovery of a displaced scan, and bad input.
 
-#include "iwlomap/correlative_scan_matcher.h"
+#include "iwlomap/registration/correlative_scan_matcher.h"
+#include "iwlomap/correlative_scan_matcher.h"  // the deprecated path still compiles
 #include "iwlomap/probability_updater.h"
 #include "iwlomap/sensor_preset.h"
 #include "iwlomap/synthetic_scan.h"
@@ -13,9 +14,17 @@
 #include <limits>
 #include <random>
 #include <stdexcept>
+#include <type_traits>
 
-namespace iwlomap {
+namespace iwlomap::registration {
 namespace {
+
+// The old names are aliases of the registration layer's (deprecated: a warning where used).
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wdeprecated-declarations"
+static_assert(std::is_same_v<iwlomap::CorrelativeScanMatcher3D, CorrelativeScanMatcher3D>);
+static_assert(std::is_same_v<iwlomap::SearchWindow3D, SearchWindow3D>);
+#pragma GCC diagnostic pop
 
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kDeg = kPi / 180.0;
@@ -146,4 +155,4 @@ TEST(CorrelativeScanMatcher3D, BadInputThrowsNamingIt) {
 }
 
 }  // namespace
-}  // namespace iwlomap
+}  // namespace iwlomap::registration

@@ -4,7 +4,7 @@
 // bad files fail with clear messages.
 
 #include "backend_test_support.h"
-#include "iwlomap/octree_mapper.h"
+#include "iwlomap/octomap/octree_mapper.h"
 #include "iwlomap/probability_updater.h"
 #include "octomap_test_support.h"
 

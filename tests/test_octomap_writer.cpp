@@ -7,7 +7,7 @@
 // threshold.
 
 #include "backend_test_support.h"
-#include "iwlomap/octree_mapper.h"
+#include "iwlomap/octomap/octree_mapper.h"
 #include "iwlomap/outofcore_tile_mapper.h"
 #include "iwlomap/probability_updater.h"
 #include "iwlomap/synthetic_scan.h"

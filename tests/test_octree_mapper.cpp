@@ -6,7 +6,8 @@
 // test_octomap_files.)
 
 #include "backend_test_support.h"
-#include "iwlomap/octree_mapper.h"
+#include "iwlomap/octomap/octree_mapper.h"
+#include "iwlomap/octree_mapper.h"  // the deprecated path still compiles
 #include "iwlomap/probability_updater.h"
 #include "octomap_test_support.h"
 

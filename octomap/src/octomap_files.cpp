@@ -4,7 +4,7 @@
 #include "octree_writer.h"
 
 #include "console_capture.h"
-#include "iwlomap/octree_mapper.h"
+#include "iwlomap/octomap/octree_mapper.h"
 #include "model/checks.h"
 
 #include <octomap/AbstractOcTree.h>

@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
 // The OctoMap backend: the exact IWLO state in a block grid, as in the RAM backend, mirrored into
 // an octomap::OcTree; OctoMap's own model on the same tree.
-#include "iwlomap/octree_mapper.h"
+#include "iwlomap/octomap/octree_mapper.h"
 
 #include "octomap_files.h"
 #include "octomap_keys.h"

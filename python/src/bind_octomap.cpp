@@ -4,7 +4,7 @@
 #include "bindings.h"
 #include "numpy_io.h"
 
-#include <iwlomap/octree_mapper.h>
+#include <iwlomap/octomap/octree_mapper.h>
 
 #include <pybind11/stl.h>
 

@@ -1,12 +1,12 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// Registration: the coarse branch-and-bound matcher (core) and, with the registration layer, the
+// Registration (with the registration layer): the coarse branch-and-bound matcher, the
 // ScanMatcher (coarse + ICP) and the RegisteredMapper.
 
 #include "bindings.h"
 #include "numpy_io.h"
 
-#include <iwlomap/correlative_scan_matcher.h>
 #ifdef IWLOMAP_PYTHON_REGISTRATION
+#include <iwlomap/registration/correlative_scan_matcher.h>
 #include <iwlomap/registration/registered_mapper.h>
 #include <iwlomap/registration/registered_sonar_mapper.h>
 #include <iwlomap/registration/scan_matcher.h>
@@ -17,6 +17,10 @@
 namespace iwlomap::python {
 
 void bind_registration(py::module_& m) {
+#ifdef IWLOMAP_PYTHON_REGISTRATION
+  using registration::CoarseMatch;
+  using registration::CorrelativeScanMatcher3D;
+  using registration::SearchWindow3D;
   const SearchWindow3D d;
   py::class_<SearchWindow3D>(m, "SearchWindow3D", "The poses searched around an initial pose (metres, radians).")
       .def(py::init([](double xy, double z, double yaw) {
@@ -73,7 +77,6 @@ void bind_registration(py::module_& m) {
           },
           py::arg("scan_sensor"), py::arg("initial"), py::arg("window") = SearchWindow3D{}, py::arg("min_score") = 0.0);
 
-#ifdef IWLOMAP_PYTHON_REGISTRATION
   namespace r = iwlomap::registration;
   const r::IcpOptions icp;
   py::class_<r::IcpOptions>(m, "IcpOptions", "Point-to-plane ICP settings (metres, radians).")

@@ -26,6 +26,7 @@ def courtyard():
     return m, origin, again[::4] - origin
 
 
+@pytest.mark.skipif(not iwlomap.HAS_REGISTRATION, reason="built without the registration layer")
 def test_coarse_branch_and_bound_equals_exhaustive(courtyard):
     m, origin, scan = courtyard
     window = iwlomap.SearchWindow3D(linear_xy=0.4, linear_z=0.2, angular_yaw=np.radians(2.0))

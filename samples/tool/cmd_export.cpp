@@ -11,7 +11,7 @@
 #include <iwlomap/filters/cloud_conversions.h>
 
 #ifdef IWLOMAP_HAVE_OCTOMAP
-#include <iwlomap/octree_mapper.h>
+#include <iwlomap/octomap/octree_mapper.h>
 #endif
 
 #include <filesystem>

@@ -6,7 +6,7 @@
 #include <iwlomap/outofcore_tile_mapper.h>
 
 #ifdef IWLOMAP_HAVE_OCTOMAP
-#include <iwlomap/octree_mapper.h>
+#include <iwlomap/octomap/octree_mapper.h>
 #endif
 
 #include <filesystem>

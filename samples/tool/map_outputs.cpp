@@ -8,7 +8,7 @@
 #include <stdexcept>
 
 #ifdef IWLOMAP_HAVE_OCTOMAP
-#include <iwlomap/octree_mapper.h>
+#include <iwlomap/octomap/octree_mapper.h>
 #endif
 #ifdef IWLOMAP_HAVE_VIEWER
 #include <iwlomap/viewer/snapshot_renderer.h>

@@ -4,7 +4,7 @@
 /// \file
 /// Scan-to-map registration: where does a scan (points in the sensor frame) fit the map, near an
 /// initial pose? Two stages:
-/// - coarse: CorrelativeScanMatcher3D (core), exact branch and bound over the map's max grids in a
+/// - coarse: CorrelativeScanMatcher3D, exact branch and bound over the map's max grids in a
 ///   search window (x, y, z, yaw), to within a voxel and a yaw step;
 /// - fine: point-to-plane ICP against the map's occupied voxels (their centres, or their mean hit
 ///   positions when the map accumulates hits), 6 degrees of freedom, nearest neighbours from a
@@ -16,7 +16,7 @@
 /// FLANN is used directly (Debian's libflann-dev, header-only k-d tree) rather than through PCL's
 /// KdTreeFLANN: the layer then needs no PCL, so a core or Python user can register scans.
 
-#include <iwlomap/correlative_scan_matcher.h>
+#include <iwlomap/registration/correlative_scan_matcher.h>
 #include <iwlomap/mapper_backend.h>
 
 #include <Eigen/Core>

@@ -34,7 +34,7 @@
 #include <memory>
 #include <string>
 
-namespace iwlomap {
+namespace iwlomap::registration {
 
 /// The poses searched around an initial pose.
 struct SearchWindow3D {
@@ -102,4 +102,4 @@ class CorrelativeScanMatcher3D {
   std::shared_ptr<const PrecomputationStack3D> stack_;
 };
 
-}  // namespace iwlomap
+}  // namespace iwlomap::registration

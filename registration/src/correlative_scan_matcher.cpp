@@ -1,7 +1,6 @@
 // SPDX-License-Identifier: BSD-3-Clause
-#include "iwlomap/correlative_scan_matcher.h"
+#include "iwlomap/registration/correlative_scan_matcher.h"
 
-#include "model/checks.h"
 
 #include <iwlomap/precomputation_grid.h>
 #include <iwlomap/voxel_key.h>
@@ -9,14 +8,22 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <tuple>
 #include <vector>
 
-namespace iwlomap {
+namespace iwlomap::registration {
 
 namespace {
+
+// "name = value" for an error message (the value as the stream prints a double).
+std::string describe(const char* name, double value) {
+  std::ostringstream out;
+  out << name << " = " << value;
+  return out.str();
+}
 
 using Index = Eigen::Vector3i;
 
@@ -68,12 +75,12 @@ int voxels_of(double metres, double resolution) {
 
 void SearchWindow3D::validate() const {
   const auto check = [](const char* name, double v) {
-    if (!(std::isfinite(v) && v > 0.0)) throw std::invalid_argument(std::string("iwlomap: SearchWindow3D: ") + detail::describe(name, v) + " must be finite and > 0");
+    if (!(std::isfinite(v) && v > 0.0)) throw std::invalid_argument(std::string("iwlomap: SearchWindow3D: ") + describe(name, v) + " must be finite and > 0");
   };
   check("linear_xy", linear_xy);
   check("linear_z", linear_z);
   check("angular_yaw", angular_yaw);
-  if (angular_yaw > kPi) throw std::invalid_argument("iwlomap: SearchWindow3D: " + detail::describe("angular_yaw", angular_yaw) + " exceeds pi");
+  if (angular_yaw > kPi) throw std::invalid_argument("iwlomap: SearchWindow3D: " + describe("angular_yaw", angular_yaw) + " exceeds pi");
 }
 
 /// A scan prepared for one window: per yaw candidate, the base-grid cell of every point at the
@@ -143,7 +150,7 @@ CorrelativeScanMatcher3D::Problem CorrelativeScanMatcher3D::prepare(const Eigen:
   window.validate();
   check_pose(initial);
   if (!(min_score >= 0.0 && min_score <= 1.0))
-    throw std::invalid_argument("iwlomap: scan matching: " + detail::describe("min_score", min_score) + " must be in [0, 1]");
+    throw std::invalid_argument("iwlomap: scan matching: " + describe("min_score", min_score) + " must be in [0, 1]");
   const std::vector<Eigen::Vector3d> points = finite_points(scan_sensor);
   Problem p;
   p.points = points.size();
@@ -161,8 +168,7 @@ CorrelativeScanMatcher3D::Problem CorrelativeScanMatcher3D::prepare(const Eigen:
     cells.reserve(points.size());
     for (const auto& q : points) {
       const Eigen::Vector3d w = r * q + p.t0;
-      if (!is_representable(w, resolution_)) detail::throw_out_of_range(-2, w, resolution_);
-      const VoxelKey k = world_to_key(w, resolution_);
+      const VoxelKey k = world_to_key_checked(w, resolution_);  // std::out_of_range beyond the key range
       cells.emplace_back(Index(k.x, k.y, k.z) - origin);
     }
     p.cells.push_back(std::move(cells));
@@ -306,4 +312,4 @@ CoarseMatch CorrelativeScanMatcher3D::match_exhaustive(const Eigen::MatrixXd& sc
   return result_of(best, p.yaws, p.steps, p.step, p.r0, p.t0, resolution_, p.points, visited, visited, initial);
 }
 
-}  // namespace iwlomap
+}  // namespace iwlomap::registration
