@@ -9,8 +9,8 @@
 // origin still give a mean to well under a micrometre) and two saturating 32-bit counters.
 //
 // Every backend accumulates a scan the same way, so that their statistics agree bit for bit: the
-// scan's ray walk (ScanScratch::collect(), RayStatistics) fills an accumulator of its own, which
-// is then merged into the map's (merge()), block by block; a batch adds its rows in call order.
+// scan's ray walk (ScanScratch::collect(), RayStatistics) fills a ScanHits of its own, which is
+// then merged into the map's (merge()), block by block; a batch adds its rows in call order.
 
 #include "model/checks.h"
 #include "storage/block_grid.h"

@@ -220,7 +220,6 @@ std::size_t ScanScratch::cast_rays(const Eigen::Vector3d& origin, const Eigen::M
   std::atomic<Eigen::Index> next{0};
   std::atomic<Eigen::Index> finished{0};  // rays cast, for the reports of the calling thread
   helpers_.resize(static_cast<std::size_t>(t - 1));
-
   std::vector<std::size_t> skipped(static_cast<std::size_t>(t), 0);
   std::vector<Eigen::Index> first_bad(static_cast<std::size_t>(t), n);
   // A thread that cannot get memory (the map memory limit, std::bad_alloc) stops the others and
