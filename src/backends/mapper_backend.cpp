@@ -79,12 +79,19 @@ void detail::apply_scratch_by_batches(IMapperBackend& map, const ScanScratch& sc
 }
 
 void detail::BackendAccess::apply_collected_scan(IMapperBackend& map, const ScanScratch& scratch) {
-  if (auto* ram = dynamic_cast<ProbabilityUpdater*>(&map))
-    apply_to_ram(*ram, scratch);
-  else if (auto* disk = dynamic_cast<OutofcoreTileMapper*>(&map))
-    apply_to_disk(*disk, scratch);
-  else
+  auto* ram = dynamic_cast<ProbabilityUpdater*>(&map);
+  auto* disk = ram == nullptr ? dynamic_cast<OutofcoreTileMapper*>(&map) : nullptr;
+  if (ram == nullptr && disk == nullptr) {
     apply_scratch_by_batches(map, scratch);
+    return;
+  }
+  // Their own scan path merges the scan's hit statistics, which only a walk of the points gives.
+  if (map.get_hit_accumulation() && scratch.statistics() == nullptr)
+    throw std::logic_error("iwlomap: a collected scan carries no points for the hit statistics; turn them off");
+  if (ram != nullptr)
+    apply_to_ram(*ram, scratch);
+  else
+    apply_to_disk(*disk, scratch);
 }
 
 void detail::BackendAccess::for_each_known_block(const IMapperBackend& map, const KnownBlockVisit& visit) {

@@ -61,12 +61,15 @@ inline std::size_t scan_growth_bound(const ScanScratch& s, const BlockGrid& grid
   return headers + cell_arrays + (headers > 0 ? kLargestSlabBytes : 0) + (cell_arrays > 0 ? kLargestSlabBytes : 0);
 }
 
-/// The Locate of a map held in one grid (RAM, OctoMap).
+/// The Locate of a map held in one grid (RAM, OctoMap), for the scan kernel below and for
+/// apply_block_sorted() (block(), grid()).
 class OneGrid {
  public:
   explicit OneGrid(BlockGrid& grid) : grid_(grid), acc_(grid) {}
   void allocate(const VoxelKey& block_key, const CellMask& cells) { grid_.ensure_cells(acc_.block(block_key), cells); }
   [[nodiscard]] VoxelBlock* find(const VoxelKey& block_key) const noexcept { return grid_.find(block_key); }
+  VoxelBlock& block(const VoxelKey& block_key) { return acc_.block(block_key); }
+  BlockGrid& grid(const VoxelKey&) noexcept { return grid_; }
 
  private:
   BlockGrid& grid_;

@@ -288,12 +288,10 @@ struct OutofcoreTileMapper::Impl {
 
   // A collected scan, routed to tiles and applied tile group by tile group through scan_apply.h,
   // each group's free voxels on up to \p threads threads, with the scan's hit statistics when the
-  // map keeps them (std::logic_error when it does and \p scan has none: nothing is changed).
-  // Reports kUpdatingVoxels by scratch chunks; an exception of the callback is kept in \p deferred.
+  // map keeps them. Reports kUpdatingVoxels by scratch chunks; an exception of the callback is
+  // kept in \p deferred.
   void apply_collected(const detail::ScanScratch& scan, int threads, const ProgressCallback* progress,
                        std::exception_ptr& deferred) {
-    if (hit_settings.enabled && scan.statistics() == nullptr)
-      throw std::logic_error("iwlomap: a collected scan carries no points for the hit statistics; turn them off");
     route_scan(scan);
     const std::size_t slots = routing.tiles().size();
     slot_group.assign(slots, kNoGroup);

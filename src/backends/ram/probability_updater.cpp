@@ -45,12 +45,7 @@ struct ProbabilityUpdater::Impl {
       detail::BlockSortedBatch sorted;
       if (sorted.build(points, intensities, is_occupied, skip, divide)) {
         skipped += skip;
-        struct InGrid {
-          detail::BlockGrid& grid_;
-          detail::VoxelBlock& block(const VoxelKey& block_key) { return grid_.get_or_create(block_key); }
-          detail::BlockGrid& grid(const VoxelKey&) { return grid_; }
-        };
-        detail::apply_block_sorted(sorted, InGrid{grid}, {intensities, is_occupied, weights}, updater, known);
+        detail::apply_block_sorted(sorted, detail::OneGrid(grid), {intensities, is_occupied, weights}, updater, known);
         return;
       }
     }
@@ -139,8 +134,6 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
 
 void detail::BackendAccess::apply_to_ram(ProbabilityUpdater& map, const ScanScratch& scratch) {
   ProbabilityUpdater::Impl& m = map.impl();
-  if (m.hits.enabled() && scratch.statistics() == nullptr)
-    throw std::logic_error("iwlomap: a collected scan carries no points for the hit statistics; turn them off");
   std::exception_ptr deferred;
   apply_collected(m, scratch, map.get_num_threads(), &map.get_progress_callback(), deferred);
   m.hits.add_scan(scratch.statistics());
