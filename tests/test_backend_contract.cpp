@@ -250,6 +250,35 @@ TYPED_TEST(BackendContract, MatchesSingleThreadRamWhenScansUseThreads) {
   expect_same_map(*map, *ref);
 }
 
+// The fast ray model: every backend marks the same line's voxels as RAM does, with threads and
+// with hit statistics (whose visits follow the same line).
+TYPED_TEST(BackendContract, MatchesSingleThreadRamWhenFastRaysUseThreadsAndHitStatistics) {
+  auto map = this->make(0.2);
+  auto ref = this->make_reference(0.2);
+  auto exact = this->make_reference(0.2);
+  EXPECT_EQ(map->get_ray_model(), RayModel::kExact);  // the default
+  map->set_ray_model(RayModel::kFast);
+  ref->set_ray_model(RayModel::kFast);
+  EXPECT_EQ(map->get_ray_model(), RayModel::kFast);
+  map->set_num_threads(3);
+  for (IMapperBackend* m : {map.get(), ref.get(), exact.get()}) m->set_hit_accumulation(true);
+  for (int s = 0; s < 2; ++s) {
+    SyntheticScanOptions o;
+    o.rings = 16;
+    o.columns = 256;
+    o.sensor_xy = Eigen::Vector2d(3.0 * s, -2.0 * s);
+    o.seed = 70u + static_cast<std::uint32_t>(s);
+    const SyntheticScan scan = make_synthetic_scan(o);
+    for (IMapperBackend* m : {map.get(), ref.get(), exact.get()})
+      m->insert_scan(scan.origin, scan.points, scan.intensities, 20.0);
+  }
+  expect_same_map(*map, *ref);
+  EXPECT_EQ(sorted_rows(map->get_occupied_mean_positions(0.5)), sorted_rows(ref->get_occupied_mean_positions(0.5)));
+  // The line visits fewer voxels than the exact walk: fewer are known.
+  EXPECT_LT(ref->get_num_known_voxels(), exact->get_num_known_voxels());
+  EXPECT_GT(ref->get_num_known_voxels(), exact->get_num_known_voxels() / 2);
+}
+
 TYPED_TEST(BackendContract, MatchesRamWhenScansAndBatchesMixWithChangedParams) {
   auto map = this->make(0.3);
   auto ref = this->make_reference(0.3);
@@ -453,9 +482,11 @@ TYPED_TEST(BackendContract, ClonesIndependentlyWhenSupported) {
     EXPECT_THROW((void)map->clone(), std::logic_error);
     return;
   }
+  map->set_ray_model(RayModel::kFast);
   const Snapshot before = snapshot(*map);
   const std::unique_ptr<IMapperBackend> copy = map->clone();
   EXPECT_EQ(copy->get_backend_type(), map->get_backend_type());
+  EXPECT_EQ(copy->get_ray_model(), RayModel::kFast);
   EXPECT_EQ(snapshot(*copy), before);
   EXPECT_TRUE(copy->get_hit_accumulation());
   EXPECT_EQ(sorted_rows(copy->get_occupied_mean_positions(0.5)), sorted_rows(map->get_occupied_mean_positions(0.5)));

@@ -161,11 +161,13 @@ TEST(ProbabilityUpdaterInsertScan, ThrowsOutOfRangeAndKeepsMapWhenPointBeyondInt
   EXPECT_EQ(snapshot(map), before);
 }
 
-// insert_scan against a reference built from compute_ray_keys(): many rays over many blocks.
-TEST(ProbabilityUpdaterInsertScan, MatchesRayReferenceWhenRandomScans) {
+// insert_scan against a reference built from the model's ray walk (compute_ray_keys() or
+// cast_line()): many rays over many blocks.
+void expect_scans_match_the_ray_reference(RayModel model) {
   const double r = 0.1;
   const double max_range = 1.6;
   ProbabilityUpdater map(r);
+  map.set_ray_model(model);
   const IwloParams params;
   std::map<VoxelKey, RefVoxel> ref;
   std::mt19937 rng(31337u);
@@ -189,7 +191,7 @@ TEST(ProbabilityUpdaterInsertScan, MatchesRayReferenceWhenRandomScans) {
       const double range = d.norm();
       const bool beyond = range > max_range;
       const Eigen::Vector3d end = beyond ? Eigen::Vector3d(origin + d * (max_range / range)) : p;
-      for (const VoxelKey& k : compute_ray_keys(origin, end, r)) free.insert(k);
+      cast_ray(origin, end, r, model, [&free](const VoxelKey& k) { free.insert(k); });
       if (!beyond) {
         const VoxelKey k = world_to_key(p, r);
         auto it = hits.find(k);
@@ -223,6 +225,14 @@ TEST(ProbabilityUpdaterInsertScan, MatchesRayReferenceWhenRandomScans) {
     EXPECT_EQ(mismatches, 0u);
     EXPECT_EQ(map.get_num_known_voxels(), want.size());
   }
+}
+
+TEST(ProbabilityUpdaterInsertScan, MatchesRayReferenceWhenRandomScans) {
+  expect_scans_match_the_ray_reference(RayModel::kExact);
+}
+
+TEST(ProbabilityUpdaterInsertScan, MatchesLineReferenceWhenRandomScansUseFastRays) {
+  expect_scans_match_the_ray_reference(RayModel::kFast);
 }
 
 // ---- threads ----

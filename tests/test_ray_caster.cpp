@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: BSD-3-Clause
 // The Amanatides-Woo traversal against a brute-force oracle: for every voxel of the key bounding
-// box of a segment, the length of the segment inside the voxel by slab clipping.
+// box of a segment, the length of the segment inside the voxel by slab clipping. The fast model's
+// line (cast_line()) against the definition of a digital line between the two end voxels.
 
 #include "iwlomap/ray_caster.h"
 
@@ -324,6 +325,106 @@ TEST(RayOracle, ReportsPositiveLengthWhenSegmentCrossesVoxel) {
   const Eigen::Vector3d d1(1.5, 1.5, 0.5);
   EXPECT_TRUE(touches(d0, d1, VoxelKey{1, 0, 0}, 1.0, 1e-9));
   EXPECT_EQ(length_in_voxel(d0, d1, VoxelKey{1, 0, 0}, 1.0), 0.0);
+}
+
+// ---- the fast ray model: cast_line() -----------------------------------------------------------
+
+std::vector<VoxelKey> line_keys(const Eigen::Vector3d& o, const Eigen::Vector3d& e, double r) {
+  std::vector<VoxelKey> keys;
+  cast_line(o, e, r, [&keys](const VoxelKey& k) { keys.push_back(k); });
+  return keys;
+}
+
+std::int64_t chebyshev(const VoxelKey& a, const VoxelKey& b) {
+  std::int64_t d = 0;
+  for (int axis = 0; axis < 3; ++axis) d = std::max<std::int64_t>(d, std::llabs(coord(a, axis) - coord(b, axis)));
+  return d;
+}
+
+// The line from key a to key b, by definition: at step s of n = max |b - a| along the axes, each
+// axis at a + (b - a) s / n rounded to the nearest key, a tie going towards a.
+VoxelKey line_point(const VoxelKey& a, const VoxelKey& b, std::int64_t s, std::int64_t n) {
+  std::int64_t c[3];
+  for (int axis = 0; axis < 3; ++axis) {
+    const std::int64_t from = coord(a, axis), d = coord(b, axis) - from;
+    // from + round(d s / n), ties towards 0 (towards a): exact in integers.
+    const std::int64_t num = 2 * std::llabs(d) * s, den = 2 * n;
+    const std::int64_t q = num / den, rem = num - q * den;
+    const std::int64_t rounded = q + (2 * rem > den ? 1 : 0);
+    c[axis] = from + (d < 0 ? -rounded : rounded);
+  }
+  return VoxelKey{static_cast<std::int32_t>(c[0]), static_cast<std::int32_t>(c[1]), static_cast<std::int32_t>(c[2])};
+}
+
+TEST(CastLine, VisitsTheDigitalLineBetweenTheEndVoxelsWhenRaysAreRandom) {
+  std::mt19937 rng(20261128u);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::uniform_int_distribution<std::size_t> pick_res(0, kResolutions.size() - 1);
+  std::uniform_int_distribution<int> pick_kind(0, 3);
+  std::size_t visited = 0;
+  for (int i = 0; i < 4000; ++i) {
+    const double r = kResolutions[pick_res(rng)];
+    const Eigen::Vector3d o = Eigen::Vector3d(u(rng), u(rng), u(rng)) * 40.0;
+    Eigen::Vector3d d = Eigen::Vector3d(u(rng), u(rng), u(rng)) * 10.0;
+    const int kind = pick_kind(rng);
+    if (kind == 1) d[i % 3] = 0.0;                // in a plane
+    if (kind == 2) d = Eigen::Vector3d::Constant(d.x());  // a main diagonal
+    const Eigen::Vector3d e = o + d;
+    const VoxelKey a = world_to_key(o, r), b = world_to_key(e, r);
+    const std::int64_t n = chebyshev(a, b);
+    const std::vector<VoxelKey> keys = line_keys(o, e, r);
+    ASSERT_EQ(static_cast<std::int64_t>(keys.size()), n) << "ray " << i;
+    for (std::int64_t s = 0; s < n; ++s)
+      ASSERT_EQ(keys[static_cast<std::size_t>(s)], line_point(a, b, s, n)) << "ray " << i << " step " << s;
+    visited += keys.size();
+  }
+  EXPECT_GT(visited, 100000u);
+}
+
+TEST(CastLine, StepsAlongEveryAxisAtOnceWhenRayRunsAlongTheMainDiagonal) {
+  // From voxel (0,0,0) to voxel (3,3,3) at 1 m: (0,0,0) (1,1,1) (2,2,2); the exact walk takes 9
+  // voxels between the same ends.
+  const Eigen::Vector3d o(0.5, 0.5, 0.5), e(3.5, 3.5, 3.5);
+  const std::vector<VoxelKey> expected = {{0, 0, 0}, {1, 1, 1}, {2, 2, 2}};
+  EXPECT_EQ(line_keys(o, e, 1.0), expected);
+  EXPECT_EQ(compute_ray_keys(o, e, 1.0).size(), 9u);
+  // cast_ray() with a model calls the walk of that model.
+  std::vector<VoxelKey> fast, exact;
+  cast_ray(o, e, 1.0, RayModel::kFast, [&](const VoxelKey& k) { fast.push_back(k); });
+  cast_ray(o, e, 1.0, RayModel::kExact, [&](const VoxelKey& k) { exact.push_back(k); });
+  EXPECT_EQ(fast, expected);
+  EXPECT_EQ(exact, compute_ray_keys(o, e, 1.0));
+}
+
+TEST(CastLine, EqualsTheExactWalkWhenRaysRunAlongAnAxis) {
+  std::mt19937 rng(7u);
+  std::uniform_real_distribution<double> u(-20.0, 20.0);
+  for (int i = 0; i < 300; ++i) {
+    const double r = kResolutions[static_cast<std::size_t>(i) % kResolutions.size()];
+    const Eigen::Vector3d o(u(rng), u(rng), u(rng));
+    Eigen::Vector3d e = o;
+    e[i % 3] += u(rng);
+    EXPECT_EQ(line_keys(o, e, r), compute_ray_keys(o, e, r)) << "ray " << i;
+  }
+}
+
+TEST(CastLine, VisitsNothingWhenTheEndIsInTheOriginVoxel) {
+  const Eigen::Vector3d o(0.01, -0.02, 0.03);
+  EXPECT_TRUE(line_keys(o, o, 0.05).empty());
+  EXPECT_TRUE(line_keys(o, Eigen::Vector3d(0.049, -0.001, 0.001), 0.05).empty());
+  // The end in a corner neighbour: the origin's voxel only.
+  const std::vector<VoxelKey> one = {{0, -1, 0}};
+  EXPECT_EQ(line_keys(o, Eigen::Vector3d(0.06, -0.06, 0.06), 0.05), one);
+}
+
+TEST(CastLine, ArrivesNextToTheEndKeyWhenHundredKilometresAway) {
+  const Eigen::Vector3d o(100000.0123, -100000.0271, 50.013), e(99990.8377, -99993.5219, 49.1031);
+  const std::vector<VoxelKey> keys = line_keys(o, e, 0.05);
+  const VoxelKey a = world_to_key(o, 0.05), b = world_to_key(e, 0.05);
+  ASSERT_EQ(static_cast<std::int64_t>(keys.size()), chebyshev(a, b));
+  EXPECT_EQ(keys.front(), a);
+  EXPECT_EQ(chebyshev(keys.back(), b), 1);
+  for (std::size_t i = 1; i < keys.size(); ++i) ASSERT_EQ(chebyshev(keys[i - 1], keys[i]), 1);
 }
 
 }  // namespace

@@ -253,7 +253,7 @@ void DistributedMapper::cast_and_apply(const Eigen::Vector3d& origin, const Eige
   const std::string error = attempt([&] {
     detail::check_scan_input(origin, points, intensities, max_range, resolution_);
     detail::ScanScratch& scratch = *scratch_;
-    skipped = scratch.collect(origin, points, intensities, max_range, resolution_, options_.threads);
+    skipped = scratch.collect(origin, points, intensities, max_range, resolution_, options_.rays, options_.threads);
     // for_each_free() calls each block's voxels one after another.
     FreeBlock current{};
     bool open = false;

@@ -331,8 +331,8 @@ void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::Matri
   // Rays may be cast on several threads (bit-identical); the octree is then updated on this one.
   const detail::RayStatistics ray_stats{m.updater.params().intensity_threshold};
   const detail::RayStatistics* stats = m.hits.enabled() ? &ray_stats : nullptr;
-  const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, get_num_threads(),
-                                             &get_progress_callback(), stats);
+  const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, get_ray_model(),
+                                             get_num_threads(), &get_progress_callback(), stats);
   // Every voxel the scan would update must have an OctoMap key; checked before anything changes.
   m.scratch.for_each_observation(
       [&](const VoxelKey& block_key, int index) {
@@ -429,6 +429,7 @@ std::unique_ptr<IMapperBackend> OctreeMapper::clone() const {
   c.skipped = m.skipped;
   c.tree_changed();
   copy->set_num_threads(get_num_threads());
+  copy->set_ray_model(get_ray_model());
   return copy;
 }
 

@@ -170,9 +170,12 @@ void bind_keys(py::module_& m) {
   m.def(
       "key_to_center", [](const VoxelKey& k, double resolution) { return to_numpy(key_to_center(k, resolution)); },
       py::arg("key"), py::arg("resolution"), "The centre of a voxel in metres, map frame.");
+  readable_enum_name(py::enum_<RayModel>(m, "RayModel", "The voxels a ray of insert_scan() marks free.")
+      .value("kExact", RayModel::kExact, "every voxel the ray crosses (the default)")
+      .value("kFast", RayModel::kFast, "a 26-connected line between voxel centres: fewer steps, fewer free voxels"));
   m.def(
       "cast_ray",
-      [](const ArrayLike& origin, const ArrayLike& end, double resolution) {
+      [](const ArrayLike& origin, const ArrayLike& end, double resolution, RayModel model) {
         const Eigen::Vector3d o = vector3_from(origin, "origin"), e = vector3_from(end, "end");
         if (!(resolution > 0.0)) throw py::value_error("resolution must be > 0, got " + std::to_string(resolution));
         if (!is_representable(o, resolution) || !is_representable(e, resolution))
@@ -180,7 +183,7 @@ void bind_keys(py::module_& m) {
         if ((e - o).norm() > kMaxRayVoxels * resolution)
           throw py::value_error("the ray is longer than MAX_RAY_VOXELS voxel edges");
         std::vector<VoxelKey> keys;
-        cast_ray(o, e, resolution, [&](const VoxelKey& k) { keys.push_back(k); });
+        cast_ray(o, e, resolution, model, [&](const VoxelKey& k) { keys.push_back(k); });
         py::array_t<std::int32_t> out({static_cast<py::ssize_t>(keys.size()), py::ssize_t{3}});
         auto w = out.mutable_unchecked<2>();
         for (std::size_t i = 0; i < keys.size(); ++i) {
@@ -190,8 +193,9 @@ void bind_keys(py::module_& m) {
         }
         return out;
       },
-      py::arg("origin"), py::arg("end"), py::arg("resolution"),
-      "The keys of the voxels a ray crosses from origin to end (metres), the end voxel excluded, as (K, 3) int32.");
+      py::arg("origin"), py::arg("end"), py::arg("resolution"), py::arg("model") = RayModel::kExact,
+      "The keys of the voxels a ray crosses from origin to end (metres), the end voxel excluded, as (K, 3) int32; "
+      "with model=RayModel.kFast, the voxels of the line insert_scan() marks free under that model.");
   m.attr("MAX_RAY_VOXELS") = kMaxRayVoxels;
 
   py::class_<VoxelBox>(m, "VoxelBox", "An axis-aligned box of voxels, bounds included (keys).")
@@ -459,6 +463,12 @@ void bind_backend(py::module_& m) {
           "set_num_threads", [](Backend& map, int t) { unlocked(map, [&] { map.set_num_threads(t); }); },
           py::arg("threads"), "Threads for one call (0: all hardware threads); the map is identical for any count.")
       .def("get_num_threads", [](Backend& map) { return unlocked(map, [&] { return map.get_num_threads(); }); })
+      .def(
+          "set_ray_model", [](Backend& map, RayModel model) { unlocked(map, [&] { map.set_ray_model(model); }); },
+          py::arg("model"),
+          "The voxels insert_scan() marks free: RayModel.kExact (default), every voxel a ray crosses; "
+          "RayModel.kFast, a 26-connected line, up to 3x fewer steps and fewer free voxels. Hits are the same.")
+      .def("get_ray_model", [](Backend& map) { return unlocked(map, [&] { return map.get_ray_model(); }); })
       .def(
           "set_progress_callback",
           [](Backend& map, const py::object& callback) {

@@ -153,6 +153,28 @@ def test_threads_give_the_same_map(scan):
     assert np.array_equal(voxel_table(one), voxel_table(two))
 
 
+def test_fast_rays_mark_the_line_of_cast_ray(scan):
+    origin, points, intensities = scan
+    exact, fast = lidar_map(), lidar_map()
+    assert exact.get_ray_model() == iwlomap.RayModel.kExact
+    fast.set_ray_model(iwlomap.RayModel.kFast)
+    assert fast.get_ray_model() == iwlomap.RayModel.kFast
+    exact.insert_scan(origin, points, intensities)
+    fast.insert_scan(origin, points, intensities)
+    assert 0 < fast.get_num_known_voxels() < exact.get_num_known_voxels()
+    # The free voxels of one ray are cast_ray's keys under the same model.
+    one = lidar_map()
+    one.set_ray_model(iwlomap.RayModel.kFast)
+    end = np.array([[3.05, 2.15, 1.25]])
+    one.insert_scan([0.05, 0.05, 0.05], end, np.array([200.0]))
+    r = one.get_resolution()
+    keys = iwlomap.cast_ray([0.05, 0.05, 0.05], end[0], r, iwlomap.RayModel.kFast)
+    assert len(keys) < len(iwlomap.cast_ray([0.05, 0.05, 0.05], end[0], r))
+    assert one.get_num_known_voxels() == len(keys) + 1  # the line and the hit
+    for k in keys:
+        assert one.query(iwlomap.key_to_center(iwlomap.VoxelKey(*map(int, k)), r)).log_odds < 0
+
+
 def test_hit_statistics_and_mean_positions(scan):
     origin, points, intensities = scan
     m = lidar_map()

@@ -184,6 +184,7 @@ int run_map(const std::vector<std::string>& argv) {
     so.resolution = setup.map->get_resolution();
     so.params = setup.map->get_params();
     so.max_range = setup.max_range;
+    so.rays = setup.rays;
     so.matcher = registration_options_from(args);
     so.closure_matcher.max_range = so.matcher.max_range;
     slam::PoseGraphMapper mapper(ExecutionMode::kParallel, so);

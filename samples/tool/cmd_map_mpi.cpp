@@ -59,6 +59,7 @@ int run_map_mpi(const Args& args, const std::vector<std::string>& inputs, const 
     mpi::DistributedOptions options;
     options.backend = setup.backend;
     options.threads = std::max(1, setup.threads);
+    options.rays = setup.rays;
     double resolution = setup.resolution;
     if (setup.backend == "disk") {
       options.directory = setup.backend_options.directory;

@@ -86,7 +86,7 @@ sonar:
                             Options given override it (--detector threshold also turns the SNR
                             weight off).
   --intensity-threshold I is both the echo threshold of the projection and the map's threshold.
-  --no-rays does not apply: a sonar ping is always projected as above.
+  --no-rays and --rays do not apply: a sonar ping is always projected as above.
 
 registration (corrects drifting navigation poses against the map):
   --register                gather the pings into submaps (built at their --poses), register each
@@ -171,6 +171,7 @@ int run_sonar(const std::vector<std::string>& argv) {
   value_opts.insert({"-o", "--output", "--octomap", "--snapshot", "--poses", "--aperture", "--min-range", "--stride", "--elevation-spacing",
                      "--band", "--no-return", "--submap-pings", "--write-poses", "--detector",
                      "--false-alarm-rate"});
+  value_opts.erase("--rays");  // a ping is projected, not cast as rays
   auto flag_opts = map_flag_options();
   flag_opts.erase("--no-rays");
   flag_opts.insert({"-h", "--help", "-q", "--quiet", "--register", "--loop-closure", "--sonar-preset"});

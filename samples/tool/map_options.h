@@ -23,6 +23,7 @@ struct MapSetup {
   IwloParams params;
   SensorPreset sensor = SensorPreset::kSonar;
   bool ray_casting = true;
+  RayModel rays = RayModel::kExact;  // --rays
   double max_range = -1.0;
   std::size_t memory_limit = 0;  // bytes (set_map_memory_limit()); 0: none
   // What the options chose, for a caller that builds its own map (--mpi).

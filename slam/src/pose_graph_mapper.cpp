@@ -133,6 +133,7 @@ std::unique_ptr<IMapperBackend> PoseGraphMapper::new_map() const {
       options_.make_map ? options_.make_map(options_.resolution) : make_backend("RAM", options_.resolution);
   if (!m) throw std::invalid_argument("iwlomap: PoseGraphMapper: make_map returned no map");
   m->set_params(options_.params);
+  m->set_ray_model(options_.rays);
   if (m->supports(BackendFeature::kHitStatistics)) m->set_hit_accumulation(true);
   return m;
 }

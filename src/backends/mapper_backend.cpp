@@ -44,7 +44,8 @@ void IMapperBackend::insert_scan(const Eigen::Vector3d& origin, const Eigen::Mat
   detail::check_scan_input(origin, points, intensities, max_range, r);
   detail::ScanScratch scratch;
   const std::size_t skipped =
-      scratch.collect(origin, points, intensities, max_range, r, get_num_threads(), &get_progress_callback());
+      scratch.collect(origin, points, intensities, max_range, r, get_ray_model(), get_num_threads(),
+                      &get_progress_callback());
   detail::apply_scratch_by_batches(*this, scratch);
   default_skipped_ += skipped;
 }

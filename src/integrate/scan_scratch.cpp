@@ -111,10 +111,50 @@ void ScanScratch::mark_ray(const Eigen::Vector3d& origin, const Eigen::Vector3d&
   }
 }
 
+// cast_line()'s walk (the same set-up and error arithmetic, so the same voxels) with mark_ray()'s
+// bookkeeping. A step moves up to three axes at once; each axis's move is computed without a
+// branch (err > 0 as 0 or 1), because on a line of a dominant axis the other axes move at
+// irregular steps and a branch per axis mispredicts often. Only a step out of the chunk branches.
+template <class Visit>
+void ScanScratch::mark_line(const Eigen::Vector3d& origin, const Eigen::Vector3d& end, double resolution,
+                            Visit&& visit) {
+  static constexpr AxisBits kAxisBits = axis_bits();
+  const LineWalk w = start_line_walk(origin, end, resolution);
+  if (w.total == 0) return;
+  constexpr int kMask = (1 << kChunkShift) - 1;
+  VoxelKey ck{w.key.x >> kChunkShift, w.key.y >> kChunkShift, w.key.z >> kChunkShift};
+  std::uint64_t* words = chunks_[chunk(ck)].free.data();
+  int lx = w.key.x & kMask, ly = w.key.y & kMask, lz = w.key.z & kMask;
+  std::int64_t ex = w.err[0], ey = w.err[1], ez = w.err[2];
+  for (std::int64_t s = 0;;) {
+    const unsigned bit = kAxisBits.x[lx] | kAxisBits.y[ly] | kAxisBits.z[lz];
+    words[bit >> 6] |= std::uint64_t{1} << (bit & 63);
+    visit(VoxelKey{ck.x * (1 << kChunkShift) + lx, ck.y * (1 << kChunkShift) + ly, ck.z * (1 << kChunkShift) + lz});
+    if (++s == w.total) break;
+    // line_step(), one axis at a time: move = err > 0; err += grow - move * fall.
+    const int mx = ex > 0, my = ey > 0, mz = ez > 0;
+    ex += w.grow[0] - mx * w.fall;
+    ey += w.grow[1] - my * w.fall;
+    ez += w.grow[2] - mz * w.fall;
+    lx += mx * w.step[0];
+    ly += my * w.step[1];
+    lz += mz * w.step[2];
+    if (static_cast<unsigned>(lx | ly | lz) > static_cast<unsigned>(kMask)) {  // out of the chunk
+      ck.x += (lx > kMask) - (lx < 0);  // -1 or +1 where the axis left it, else 0
+      ck.y += (ly > kMask) - (ly < 0);
+      ck.z += (lz > kMask) - (lz < 0);
+      lx &= kMask;
+      ly &= kMask;
+      lz &= kMask;
+      words = chunks_[chunk(ck)].free.data();
+    }
+  }
+}
+
 std::size_t ScanScratch::collect_range(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                        const Eigen::VectorXd& intensities, double max_range, double resolution,
-                                       Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad,
-                                       bool visits) {
+                                       RayModel rays, Eigen::Index begin, Eigen::Index end,
+                                       Eigen::Index* first_bad, bool visits) {
   const double longest = kMaxRayVoxels * resolution;
   std::size_t skipped = 0;
   for (Eigen::Index i = begin; i < end; ++i) {
@@ -134,10 +174,18 @@ std::size_t ScanScratch::collect_range(const Eigen::Vector3d& origin, const Eige
       *first_bad = std::min(*first_bad, i);
       continue;
     }
-    if (!visits)
-      mark_ray(origin, ray.end, resolution, [](const VoxelKey&) {});
-    else
-      mark_ray(origin, ray.end, resolution, [this](const VoxelKey& k) { ray_hits_.add_visit(k); });
+    const auto no_visit = [](const VoxelKey&) {};
+    const auto count_visit = [this](const VoxelKey& k) { ray_hits_.add_visit(k); };
+    if (rays == RayModel::kFast) {
+      if (!visits)
+        mark_line(origin, ray.end, resolution, no_visit);
+      else
+        mark_line(origin, ray.end, resolution, count_visit);
+    } else if (!visits) {
+      mark_ray(origin, ray.end, resolution, no_visit);
+    } else {
+      mark_ray(origin, ray.end, resolution, count_visit);
+    }
     if (!ray.clipped) add_hit(world_to_key(p, resolution), intensity);
   }
   return skipped;
@@ -156,11 +204,12 @@ void ScanScratch::merge(const ScanScratch& other) {
 
 std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                  const Eigen::VectorXd& intensities, double max_range, double resolution,
-                                 int threads, const ProgressCallback* progress, const RayStatistics* stats) {
+                                 RayModel rays, int threads, const ProgressCallback* progress,
+                                 const RayStatistics* stats) {
   clear();
   if (stats != nullptr) ray_hits_.reset(resolution);
   const std::size_t skipped =
-      cast_rays(origin, points, intensities, max_range, resolution, threads, progress, stats != nullptr);
+      cast_rays(origin, points, intensities, max_range, resolution, rays, threads, progress, stats != nullptr);
   if (stats != nullptr) {
     add_ray_ends(origin, points, intensities, max_range, resolution, *stats);
     has_statistics_ = true;
@@ -190,7 +239,7 @@ void ScanScratch::add_ray_ends(const Eigen::Vector3d& origin, const Eigen::Matri
 
 std::size_t ScanScratch::cast_rays(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                    const Eigen::VectorXd& intensities, double max_range, double resolution,
-                                   int threads, const ProgressCallback* progress, bool visits) {
+                                   RayModel rays, int threads, const ProgressCallback* progress, bool visits) {
   const Eigen::Index n = points.rows();
   StageProgress report(progress, ProgressStage::kCastingRays, static_cast<std::size_t>(n));
   // Below a few thousand rays a thread costs more than it saves.
@@ -200,11 +249,11 @@ std::size_t ScanScratch::cast_rays(const Eigen::Vector3d& origin, const Eigen::M
   constexpr Eigen::Index kReportGrain = 4096;
   if (t == 1) {
     if (!report.active())
-      return collect_range(origin, points, intensities, max_range, resolution, 0, n, nullptr, visits);
+      return collect_range(origin, points, intensities, max_range, resolution, rays, 0, n, nullptr, visits);
     std::size_t skipped = 0;
     for (Eigen::Index b = 0; b < n; b += kReportGrain) {
-      skipped += collect_range(origin, points, intensities, max_range, resolution, b, std::min(b + kReportGrain, n),
-                               nullptr, visits);
+      skipped += collect_range(origin, points, intensities, max_range, resolution, rays, b,
+                               std::min(b + kReportGrain, n), nullptr, visits);
       report.report(static_cast<std::size_t>(std::min(b + kReportGrain, n)));
     }
     report.finish();
@@ -228,7 +277,7 @@ std::size_t ScanScratch::cast_rays(const Eigen::Vector3d& origin, const Eigen::M
   const auto work = [&](ScanScratch& into, std::size_t k) {
     try {
       for (Eigen::Index b = next.fetch_add(kGrain); b < n; b = next.fetch_add(kGrain)) {
-        skipped[k] += into.collect_range(origin, points, intensities, max_range, resolution, b,
+        skipped[k] += into.collect_range(origin, points, intensities, max_range, resolution, rays, b,
                                          std::min(b + kGrain, n), &first_bad[k], visits);
         const Eigen::Index cast = finished.fetch_add(std::min(b + kGrain, n) - b, std::memory_order_relaxed) +
                                   std::min(b + kGrain, n) - b;

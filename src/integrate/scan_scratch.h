@@ -14,6 +14,7 @@
 #include "storage/block_grid.h"
 #include "storage/flat_key_map.h"
 #include "iwlomap/progress.h"
+#include "iwlomap/ray_caster.h"
 #include "iwlomap/voxel_key.h"
 
 #include <Eigen/Core>
@@ -63,9 +64,11 @@ class ScanScratch {
   /// ProgressStage::kCastingRays (points walked) from the calling thread; an exception of the
   /// callback ends the collection (the map is untouched, as above). With \p stats, also gathers
   /// the scan's hit statistics (RayStatistics).
+  /// \p rays chooses the voxels a ray marks free (RayModel).
   std::size_t collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
-                      const Eigen::VectorXd& intensities, double max_range, double resolution, int threads = 1,
-                      const ProgressCallback* progress = nullptr, const RayStatistics* stats = nullptr);
+                      const Eigen::VectorXd& intensities, double max_range, double resolution, RayModel rays,
+                      int threads = 1, const ProgressCallback* progress = nullptr,
+                      const RayStatistics* stats = nullptr);
 
   /// Calls fn(block_key, cells) for every grid block (8^3) that holds an observation, free or
   /// hit, with \p cells (a CellMask) holding each cell of the block (see index_in_block()) that
@@ -169,12 +172,13 @@ class ScanScratch {
   // index) and skipped.
   std::size_t collect_range(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                             const Eigen::VectorXd& intensities, double max_range, double resolution,
-                            Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad, bool visits);
+                            RayModel rays, Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad,
+                            bool visits);
   void merge(const ScanScratch& other);
   // collect() without clearing first, counting visits as collect_range() does.
   std::size_t cast_rays(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
-                        const Eigen::VectorXd& intensities, double max_range, double resolution, int threads,
-                        const ProgressCallback* progress, bool visits);
+                        const Eigen::VectorXd& intensities, double max_range, double resolution, RayModel rays,
+                        int threads, const ProgressCallback* progress, bool visits);
   void add_ray_ends(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                     double max_range, double resolution, const RayStatistics& stats);
 
@@ -203,6 +207,9 @@ class ScanScratch {
   // Marks free every voxel cast_ray() visits from \p origin to \p end, calling visit(key) for each.
   template <class Visit>
   void mark_ray(const Eigen::Vector3d& origin, const Eigen::Vector3d& end, double resolution, Visit&& visit);
+  // The same for cast_line() (RayModel::kFast).
+  template <class Visit>
+  void mark_line(const Eigen::Vector3d& origin, const Eigen::Vector3d& end, double resolution, Visit&& visit);
 
   std::vector<Chunk> chunks_;
   FlatKeyMap chunk_index_;

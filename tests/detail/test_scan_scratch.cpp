@@ -1,5 +1,6 @@
 // SPDX-License-Identifier: BSD-3-Clause
-// The scan scratch: its free voxels are exactly those cast_ray() visits; rays cast on several
+// The scan scratch: its free voxels are exactly those cast_ray() (or, with RayModel::kFast,
+// cast_line()) visits; rays cast on several
 // threads into scratches of their own and merged give exactly the observations of one thread (OR
 // of free bits, max of hit intensities).
 
@@ -39,10 +40,11 @@ Observations observations_of(const detail::ScanScratch& s) {
 }
 
 // The scratch walks rays with its own bookkeeping (a bit index kept per axis, chunk changes on
-// the way); the voxels must be cast_ray()'s, ray for ray. The rays start on both sides of zero
-// and near chunk corners, run long (across many 32-voxel chunks, in every direction), along axes
-// and diagonals and through voxel edges, where the walk's tie rule decides.
-TEST(ScanScratch, FreeVoxelsEqualCastRayWhenRaysCrossChunksInEveryDirection) {
+// the way); the voxels must be cast_ray()'s (cast_line()'s for the fast model), ray for ray. The
+// rays start on both sides of zero and near chunk corners, run long (across many 32-voxel chunks,
+// in every direction, the line's steps leaving a chunk along two or three axes at once), along
+// axes and diagonals and through voxel edges, where the walk's tie rule decides.
+void expect_free_voxels_equal_the_model(RayModel model) {
   const double res = 0.1;
   std::mt19937 rng(2026);
   std::uniform_real_distribution<double> u(-1.0, 1.0);
@@ -65,18 +67,26 @@ TEST(ScanScratch, FreeVoxelsEqualCastRayWhenRaysCrossChunksInEveryDirection) {
 
     std::set<std::tuple<int, int, int>> walked, hits;
     for (const Eigen::Vector3d& e : ends) {
-      cast_ray(origin, e, res, [&](const VoxelKey& k) { walked.emplace(k.x, k.y, k.z); });
+      cast_ray(origin, e, res, model, [&](const VoxelKey& k) { walked.emplace(k.x, k.y, k.z); });
       const VoxelKey h = world_to_key(e, res);
       hits.emplace(h.x, h.y, h.z);
     }
     for (const auto& h : hits) walked.erase(h);  // occupied wins over free
     detail::ScanScratch s;
-    s.collect(origin, points, intensities, -1.0, res, 1);
+    s.collect(origin, points, intensities, -1.0, res, model, 1);
     const Observations o = observations_of(s);
-    EXPECT_GT(o.free.size(), 20000u);
+    EXPECT_GT(o.free.size(), 10000u);
     EXPECT_EQ(o.free, walked) << "origin " << origin.transpose();
     EXPECT_EQ(o.hits.size(), hits.size());
   }
+}
+
+TEST(ScanScratch, FreeVoxelsEqualCastRayWhenRaysCrossChunksInEveryDirection) {
+  expect_free_voxels_equal_the_model(RayModel::kExact);
+}
+
+TEST(ScanScratch, FreeVoxelsEqualCastLineWhenFastRaysCrossChunksInEveryDirection) {
+  expect_free_voxels_equal_the_model(RayModel::kFast);
 }
 
 TEST(ScanScratch, MergedThreadsEqualOneThreadWhenCollectingAScan) {
@@ -91,21 +101,23 @@ TEST(ScanScratch, MergedThreadsEqualOneThreadWhenCollectingAScan) {
   Eigen::VectorXd intensities(2 * n);
   points << scan.points, scan.points;
   intensities << scan.intensities, scan.intensities * 0.5;
-  detail::ScanScratch one, three;
-  one.collect(scan.origin, points, intensities, 20.0, 0.1, 1);
-  three.collect(scan.origin, points, intensities, 20.0, 0.1, 3);
-  const Observations a = observations_of(one), b = observations_of(three);
-  EXPECT_GT(a.free.size(), 100000u);
-  EXPECT_GT(a.hits.size(), 1000u);
-  EXPECT_EQ(a.free, b.free);
-  EXPECT_EQ(a.hits, b.hits);
-  ASSERT_EQ(a.blocks.size(), b.blocks.size());
-  for (std::size_t i = 0; i < a.blocks.size(); ++i) {
-    EXPECT_EQ(a.blocks[i].first, b.blocks[i].first);  // the same order, whatever the threads
-    EXPECT_EQ(a.blocks[i].second.word, b.blocks[i].second.word);
+  for (const RayModel model : {RayModel::kExact, RayModel::kFast}) {
+    detail::ScanScratch one, three;
+    one.collect(scan.origin, points, intensities, 20.0, 0.1, model, 1);
+    three.collect(scan.origin, points, intensities, 20.0, 0.1, model, 3);
+    const Observations a = observations_of(one), b = observations_of(three);
+    EXPECT_GT(a.free.size(), 100000u);
+    EXPECT_GT(a.hits.size(), 1000u);
+    EXPECT_EQ(a.free, b.free);
+    EXPECT_EQ(a.hits, b.hits);
+    ASSERT_EQ(a.blocks.size(), b.blocks.size());
+    for (std::size_t i = 0; i < a.blocks.size(); ++i) {
+      EXPECT_EQ(a.blocks[i].first, b.blocks[i].first);  // the same order, whatever the threads
+      EXPECT_EQ(a.blocks[i].second.word, b.blocks[i].second.word);
+    }
+    // A hit voxel is never also listed free (occupied wins).
+    for (const auto& [k, intensity] : a.hits) EXPECT_EQ(a.free.count(k), 0u);
   }
-  // A hit voxel is never also listed free (occupied wins).
-  for (const auto& [k, intensity] : a.hits) EXPECT_EQ(a.free.count(k), 0u);
 }
 
 }  // namespace

@@ -2,7 +2,7 @@
 # SPDX-License-Identifier: BSD-3-Clause
 # `iwlomap map --mpi` under mpirun: the occupied voxels of 2 and 3 ranks (RAM and Disk shards,
 # files round robin or each split by points)
-# and the .ot file are those of the one-process `iwlomap map`; a bad output ends every rank with
+# and the .ot file, with either ray model, are those of the one-process `iwlomap map`; a bad output ends every rank with
 # the usage code; a file one rank cannot read ends the job naming it.
 # usage: test_map_mpi.sh MPIEXEC IWLOMAP WORKDIR
 set -u
@@ -24,6 +24,12 @@ if "$tool" --version | grep -qi octomap; then
   "$tool" map "${scans[@]}" "${opts[@]}" -q --octomap "$work/one.ot" || fail "one-process .ot"
   run -np 2 "$tool" map --mpi "${scans[@]}" "${opts[@]}" -q --octomap "$work/two.ot" || fail "2 ranks, .ot"
   cmp "$work/one.ot" "$work/two.ot" || fail "the .ot files differ"
+  # The fast ray model travels to the ranks: its map too is the one-process map.
+  "$tool" map "${scans[@]}" "${opts[@]}" --rays fast -q --octomap "$work/one_fast.ot" || fail "one-process .ot, fast rays"
+  run -np 2 "$tool" map --mpi "${scans[@]}" "${opts[@]}" --rays fast -q --octomap "$work/two_fast.ot" \
+    || fail "2 ranks, .ot, fast rays"
+  cmp "$work/one_fast.ot" "$work/two_fast.ot" || fail "the .ot files of fast rays differ"
+  ! cmp -s "$work/one.ot" "$work/one_fast.ot" || fail "--rays fast gave the map of exact rays"
 fi
 # An output rank 0 refuses ends every rank at once (no rank left waiting), with the usage code.
 out=$(timeout 60 "$mpiexec" --oversubscribe --allow-run-as-root -np 2 "$tool" map --mpi "${scans[@]}" -o "$work/bad.txt" 2>&1)

@@ -43,11 +43,12 @@ for cmd in map info generate export; do
   check "help_$cmd" 0 "$TOOL" "$cmd" --help
   expect "help_${cmd}_usage" grep -q "usage: iwlomap $cmd" "$WORK/help_$cmd.out"
 done
-expect map_help_lists_every_option bash -c "for o in --tile-size --cache-tiles --octomap --snapshot --threads --async --resolution --backend --tiles --max-range --no-rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio --max-memory --register --window --min-score; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
+expect map_help_lists_every_option bash -c "for o in --tile-size --cache-tiles --octomap --snapshot --threads --async --resolution --backend --tiles --max-range --no-rays --rays --sensor --threshold --sharpness --decay-rate --min-alpha --l-min --l-max --l-occ --l-free --intensity-threshold --intensity-max --no-adaptive --adaptive-threshold --adaptive-max-ratio --max-memory --register --window --min-score; do grep -q -- \"\$o\" '$WORK/help_map.out' || { echo missing \$o; exit 1; }; done"
 
 check help_sonar 0 "$TOOL" sonar --help
 expect sonar_help_max_range_once test "$(grep -c -- '--max-range' "$WORK/help_sonar.out")" = 1
 expect sonar_help_no_rays_not_offered bash -c "! grep -Eq -- '^  --no-rays {2,}' '$WORK/help_sonar.out'"
+expect sonar_help_rays_not_offered bash -c "! grep -Eq -- '^  --rays ' '$WORK/help_sonar.out'"
 expect sonar_help_register bash -c "grep -q -- '--register' '$WORK/help_sonar.out' && grep -q -- '--write-poses' '$WORK/help_sonar.out'"
 expect sonar_help_outputs bash -c "grep -q -- '--octomap' '$WORK/help_sonar.out' && grep -q -- '--snapshot' '$WORK/help_sonar.out'"
 
@@ -425,6 +426,16 @@ check max_range_negative 2 "$TOOL" map "$WORK/scan.pcd" --max-range -1 -o "$WORK
 check max_range_none 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --max-range none -o "$WORK/max_range_none.pcd"
 check max_range_default 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 -o "$WORK/max_range_default.pcd"
 expect max_range_none_is_no_limit cmp -s "$WORK/max_range_none.pcd" "$WORK/max_range_default.pcd"
+# --rays: exact is the default; fast maps; a wrong value, or --rays with --no-rays, is refused.
+check rays_exact 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --rays exact -o "$WORK/rays_exact.pcd"
+expect rays_exact_is_the_default cmp -s "$WORK/rays_exact.pcd" "$WORK/max_range_default.pcd"
+check rays_fast 0 "$TOOL" map "$WORK/scan.pcd" --resolution 0.2 --rays fast -o "$WORK/rays_fast.pcd"
+expect rays_fast_writes_voxels test -s "$WORK/rays_fast.pcd"
+check rays_unknown 2 "$TOOL" map "$WORK/scan.pcd" --rays quick -o "$WORK/never.pcd"
+expect rays_unknown_says_so grep -q -- "--rays must be exact or fast, got 'quick'" "$WORK/rays_unknown.err"
+check rays_without_rays 2 "$TOOL" map "$WORK/scan.pcd" --rays fast --no-rays -o "$WORK/never.pcd"
+check rays_print_config 0 "$TOOL" map --rays fast --print-config
+expect rays_print_config_says_fast grep -qx "rays: fast" "$WORK/rays_print_config.out"
 check same_output_twice 2 "$TOOL" map "$WORK/scan.pcd" -o "$WORK/twice.pcd" --snapshot "$WORK/./twice.pcd"
 # An output never replaces an input: the same path, a symbolic link to it or a hard link of it is
 # refused before any work and the input is left as it was.

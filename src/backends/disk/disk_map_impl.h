@@ -274,12 +274,12 @@ struct OutofcoreTileMapper::Impl {
   // Reports kCastingRays, then kUpdatingVoxels (an exception of the callback there is rethrown once
   // the scan is applied in full).
   void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
-                   double max_range, int threads, const ProgressCallback* progress) {
+                   double max_range, RayModel rays, int threads, const ProgressCallback* progress) {
     detail::check_scan_input(origin, points, intensities, max_range, resolution);
     const detail::RayStatistics ray_stats{updater.params().intensity_threshold};
     const detail::RayStatistics* stats = hit_settings.enabled ? &ray_stats : nullptr;
     const std::size_t skip =
-        scratch.collect(origin, points, intensities, max_range, resolution, threads, progress, stats);
+        scratch.collect(origin, points, intensities, max_range, resolution, rays, threads, progress, stats);
     std::exception_ptr deferred;
     apply_collected(scratch, threads, progress, deferred);
     skipped += skip;

@@ -123,8 +123,8 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
   const ProgressCallback* progress = &get_progress_callback();
   const detail::RayStatistics ray_stats{m.updater.params().intensity_threshold};
   const detail::RayStatistics* stats = m.hits.enabled() ? &ray_stats : nullptr;
-  const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, threads, progress,
-                                             stats);
+  const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, get_ray_model(),
+                                             threads, progress, stats);
   std::exception_ptr deferred;
   apply_collected(m, m.scratch, threads, progress, deferred);
   m.skipped += skip;
@@ -202,6 +202,7 @@ std::unique_ptr<IMapperBackend> ProbabilityUpdater::clone() const {
   auto copy = std::make_unique<ProbabilityUpdater>(m.resolution);
   copy->impl_ = std::make_unique<Impl>(m);
   copy->set_num_threads(get_num_threads());
+  copy->set_ray_model(get_ray_model());
   return copy;
 }
 

@@ -68,6 +68,8 @@ struct DistributedOptions {
   std::size_t cache_tiles = 64;
   /// Threads each rank uses to cast the rays of its scans (>= 1): the map does not depend on it.
   int threads = 1;
+  /// The voxels each ray marks free (IMapperBackend::set_ray_model()); the same on every rank.
+  RayModel rays = RayModel::kExact;
 };
 
 /// The shard (tile coordinates) holding \p voxel, for shards of \p tile_voxels voxels a side

@@ -58,6 +58,7 @@ struct PoseGraphMapperOptions {
   std::function<std::unique_ptr<IMapperBackend>(double resolution)> make_map;
   IwloParams params;        ///< IWLO parameters of every map (e.g. sensor_preset_params(kLidar))
   double max_range = -1.0;  ///< rays are clipped here when integrating (metres; < 0: unlimited)
+  RayModel rays = RayModel::kExact;  ///< the ray model of every map (IMapperBackend::set_ray_model())
   int scans_per_submap = 20;  ///< a submap takes this many scans; a new one starts every half of it
   registration::ScanMatcherOptions matcher;  ///< the front end's registration
   RefusedScanPolicy refused = RefusedScanPolicy::kIntegrateAtPrior;

@@ -97,6 +97,7 @@ void OccupancyFilter<PointT>::ensureMap() {
     map_ = std::make_shared<ProbabilityUpdater>(resolution_);
     params_pending_ = true;
     threads_pending_ = true;
+    ray_model_pending_ = true;
   }
   if (params_pending_) {
     map_->set_params(params_);
@@ -105,6 +106,10 @@ void OccupancyFilter<PointT>::ensureMap() {
   if (threads_pending_) {
     map_->set_num_threads(num_threads_);
     threads_pending_ = false;
+  }
+  if (ray_model_pending_) {
+    map_->set_ray_model(ray_model_);
+    ray_model_pending_ = false;
   }
   if (mean_positions_ && !map_->get_hit_accumulation()) map_->set_hit_accumulation(true);
   if (color_means_ && !colors_) colors_ = std::make_shared<VoxelColorMeans>(map_->get_resolution());
