@@ -12,6 +12,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <stdexcept>
@@ -68,9 +69,11 @@ PoseGraphMapperOptions options(bool closures) {
   return o;
 }
 
-void add_all(PoseGraphMapper& mapper) {
+// Adds the first \p n scans of the loop (all by default).
+void add_all(PoseGraphMapper& mapper, std::size_t n = static_cast<std::size_t>(-1)) {
   const Loop& l = loop();
-  for (std::size_t i = 0; i < l.truth.size(); ++i) (void)mapper.add_scan(l.nav[i], l.frames[i].points, l.frames[i].intensities);
+  for (std::size_t i = 0; i < std::min(n, l.truth.size()); ++i)
+    (void)mapper.add_scan(l.nav[i], l.frames[i].points, l.frames[i].intensities);
 }
 
 double ate(const std::vector<Eigen::Isometry3d>& p) {
@@ -121,9 +124,12 @@ TEST(PoseGraphMapper, ClosesTheLoopTheSameInBothModesAndRejectsAFalseClosure) {
   EXPECT_TRUE(rebuilt.isApprox(ma, 0.0));
 }
 
+// An optimisation's output reaches the poses only through write_map(), so a terminated job
+// leaves them as they were however far it got: three submaps of scans are enough to show it.
 TEST(PoseGraphMapper, TerminateLeavesThePosesAsTheyWere) {
   PoseGraphMapper m(ExecutionMode::kParallel, options(false));
-  add_all(m);
+  add_all(m, 16);
+  ASSERT_GE(m.summary().submaps, 3u);
   const std::vector<Eigen::Isometry3d> before = m.poses();
   m.optimize();
   m.terminate();

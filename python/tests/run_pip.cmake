@@ -2,10 +2,14 @@
 # `pip install --no-build-isolation .` from the source tree, offline (Debian's setuptools and
 # wheel), into WORK/target; then imports the package from a Python run outside the source and
 # build trees, with only PYTHONPATH pointing at it, and maps a point.
-# Usage: cmake -DSOURCE_DIR=... -DWORK=... -DPYTHON=... -P run_pip.cmake
+# Usage: cmake -DSOURCE_DIR=... -DWORK=... -DPYTHON=... [-DPIP_BUILD_DIR=...] -P run_pip.cmake
+# (PIP_BUILD_DIR: the package's CMake folder, IWLOMAP_PIP_BUILD_DIR; default WORK/build.)
 file(REMOVE_RECURSE "${WORK}/target")
 file(MAKE_DIRECTORY "${WORK}")
-execute_process(COMMAND ${CMAKE_COMMAND} -E env "IWLOMAP_PIP_BUILD_DIR=${WORK}/build" PIP_NO_INDEX=1
+if(NOT PIP_BUILD_DIR)
+  set(PIP_BUILD_DIR "${WORK}/build")
+endif()
+execute_process(COMMAND ${CMAKE_COMMAND} -E env "IWLOMAP_PIP_BUILD_DIR=${PIP_BUILD_DIR}" PIP_NO_INDEX=1
           ${PYTHON} -m pip install --no-build-isolation --no-deps --no-input --target "${WORK}/target" "${SOURCE_DIR}"
   RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
 if(rc)

@@ -3,15 +3,20 @@
 # iwlomap found the documented way:
 #   MODE=install     the build tree BUILD_DIR installed into WORK/prefix first
 #   MODE=build-tree  the build tree itself
-#   MODE=shared      iwlomap built as shared libraries (every layer but the filter and the viewer)
-#                    from SOURCE_ROOT into WORK (so also checks each library's SONAME), then installed
+#   MODE=shared      iwlomap built as shared libraries (every layer but the filter) from
+#                    SOURCE_ROOT into SHARED_BUILD_DIR (default WORK/iwlomap; so also checks each
+#                    library's SONAME), then installed
 # FLAGS: extra compile flags of the consumer (e.g. -march=native); DISABLE: packages the
 # consumer's configure must not find (CMAKE_DISABLE_FIND_PACKAGE_<name>), to prove a component
 # needs nothing more; LAUNCHER: the compiler launcher of the calling build (ccache), used by both
 # builds here.
 # Usage: cmake -DMODE=... -DCONSUMER=... -DBUILD_DIR=... -DSOURCE=... -DSOURCE_ROOT=... -DWORK=...
-#              [-DFLAGS=...] [-DDISABLE=PCL;VTK;octomap] [-DLAUNCHER=ccache] -P run_consumer.cmake
+#              [-DFLAGS=...] [-DDISABLE=PCL;VTK;octomap] [-DLAUNCHER=ccache] [-DSHARED_BUILD_DIR=...]
+#              -P run_consumer.cmake
 file(REMOVE_RECURSE "${WORK}")
+if(NOT SHARED_BUILD_DIR)
+  set(SHARED_BUILD_DIR "${WORK}/iwlomap")
+endif()
 set(launcher "-DCMAKE_CXX_COMPILER_LAUNCHER=${LAUNCHER}" "-DCMAKE_C_COMPILER_LAUNCHER=${LAUNCHER}")
 function(run)
   execute_process(COMMAND ${ARGN} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE out)
@@ -22,12 +27,13 @@ function(run)
 endfunction()
 
 if(MODE STREQUAL "shared")
-  run(${CMAKE_COMMAND} -S "${SOURCE_ROOT}" -B "${WORK}/iwlomap" -DCMAKE_BUILD_TYPE=Release -DBUILD_SHARED_LIBS=ON ${launcher}
-      -DIWLOMAP_BUILD_TESTS=OFF -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_WITH_VIEWER=OFF -DIWLOMAP_WITH_FILTERS=OFF)
-  run(${CMAKE_COMMAND} --build "${WORK}/iwlomap" -j 2)
-  run(${CMAKE_COMMAND} --install "${WORK}/iwlomap" --prefix "${WORK}/prefix")
+  file(REMOVE_RECURSE "${SHARED_BUILD_DIR}")
+  run(${CMAKE_COMMAND} -S "${SOURCE_ROOT}" -B "${SHARED_BUILD_DIR}" -DCMAKE_BUILD_TYPE=Release -DBUILD_SHARED_LIBS=ON ${launcher}
+      -DIWLOMAP_BUILD_TESTS=OFF -DIWLOMAP_BUILD_SAMPLES=OFF -DIWLOMAP_WITH_FILTERS=OFF)
+  run(${CMAKE_COMMAND} --build "${SHARED_BUILD_DIR}" -j 2)
+  run(${CMAKE_COMMAND} --install "${SHARED_BUILD_DIR}" --prefix "${WORK}/prefix")
   # Every layer built here installs a versioned library with a versioned SONAME.
-  file(GLOB_RECURSE built LIST_DIRECTORIES false RELATIVE "${WORK}/iwlomap" "${WORK}/iwlomap/libiwlomap_*.so")
+  file(GLOB_RECURSE built LIST_DIRECTORIES false RELATIVE "${SHARED_BUILD_DIR}" "${SHARED_BUILD_DIR}/libiwlomap_*.so")
   list(TRANSFORM built REPLACE "^(.*/)?libiwlomap_(.*)\\.so$" "\\2")
   list(APPEND built core octomap)
   list(REMOVE_DUPLICATES built)
