@@ -11,6 +11,7 @@
 #include "iwlomap/synthetic_scan.h"
 
 #include "tile_test_inputs.h"
+#include "repetitions.h"
 
 #include <gtest/gtest.h>
 
@@ -65,7 +66,7 @@ using namespace disk_test;
 // they must never show through.
 TEST(OutofcoreTileMapper, ReopensAsOneCommittedStateWhenWriterKilledAtRandomMoments) {
   const TempDir tmp;
-  const int kRounds = 100;
+  const int kRounds = test_support::repetitions(100, 30);
   std::mt19937 rng(20261121u);
   std::uniform_int_distribution<int> delay_ms(2, 200);
   int after_rounds = 0, max_steps = 0;

@@ -6,6 +6,7 @@
 #include "iwlomap/precomputation_grid.h"
 #include "iwlomap/precomputation_stack.h"
 #include "iwlomap/probability_updater.h"
+#include "repetitions.h"
 
 #include <gtest/gtest.h>
 
@@ -114,7 +115,7 @@ TEST(PrecomputationGrid3D, LargerGridMatchesBruteForceForWidths1To64) {
         for (int j = 0; j < n.y(); ++j)
           for (int i = 0; i < n.x(); ++i) check(i, j, k);
       std::uniform_int_distribution<int> di(0, n.x() - 1), dj(0, n.y() - 1), dk(0, n.z() - 1);
-      for (int s = 0; s < 20000; ++s) check(di(rng), dj(rng), dk(rng));
+      for (int s = 0; s < test_support::repetitions(20000, 2000); ++s) check(di(rng), dj(rng), dk(rng));
     }
     EXPECT_EQ(mismatches, 0) << "w = " << w;
   }
