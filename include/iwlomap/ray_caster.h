@@ -171,15 +171,14 @@ struct LineWalk {
   return w;
 }
 
-/// One step of the line: the axes that move (bit a set: axis a), with the errors updated.
+/// One step of the line: the axes that move (bit a set: axis a), with the errors updated. The scan
+/// scratch's walk does the same arithmetic on errors kept in registers (scan_scratch.cpp).
 [[nodiscard]] inline unsigned line_step(LineWalk& w) noexcept {
   unsigned moved = 0;
   for (int a = 0; a < 3; ++a) {
-    if (w.err[a] > 0) {
-      moved |= 1u << a;
-      w.err[a] -= w.fall;
-    }
-    w.err[a] += w.grow[a];
+    const unsigned m = w.err[a] > 0;
+    w.err[a] += w.grow[a] - static_cast<std::int64_t>(m) * w.fall;
+    moved |= m << a;
   }
   return moved;
 }
