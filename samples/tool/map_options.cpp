@@ -173,7 +173,9 @@ MapSetup map_setup_from(const Args& args, SensorPreset default_sensor, const std
       s.rays = RayModel::kFast;
     else if (*rays != "exact")
       throw UsageError("--rays must be exact or fast, got '" + *rays + "'");
-    if (!s.ray_casting) throw UsageError("--rays chooses how rays are cast: it cannot go with --no-rays");
+    // (exact is the default, so --print-config writes it beside no-rays: true; fast asks for rays)
+    if (s.rays == RayModel::kFast && !s.ray_casting)
+      throw UsageError("--rays fast chooses how rays are cast: it cannot go with --no-rays");
   }
 
   std::string backend = args.value("--backend").value_or("ram");

@@ -436,6 +436,10 @@ expect rays_unknown_says_so grep -q -- "--rays must be exact or fast, got 'quick
 check rays_without_rays 2 "$TOOL" map "$WORK/scan.pcd" --rays fast --no-rays -o "$WORK/never.pcd"
 check rays_print_config 0 "$TOOL" map --rays fast --print-config
 expect rays_print_config_says_fast grep -qx "rays: fast" "$WORK/rays_print_config.out"
+# The configuration of a run without rays reads back (it names the default ray model).
+check no_rays_print_config 0 "$TOOL" map --no-rays --print-config
+cp "$WORK/no_rays_print_config.out" "$WORK/no_rays.yaml"
+check no_rays_config_reads_back 0 "$TOOL" map --config "$WORK/no_rays.yaml" --print-config
 check same_output_twice 2 "$TOOL" map "$WORK/scan.pcd" -o "$WORK/twice.pcd" --snapshot "$WORK/./twice.pcd"
 # An output never replaces an input: the same path, a symbolic link to it or a hard link of it is
 # refused before any work and the input is left as it was.
