@@ -53,8 +53,8 @@ class ProbabilityUpdater final : public BackendBase {
 
   /// Hit statistics (see hit_statistics.h for what counts): kept in a side structure of 32 bytes
   /// per voxel (8^3 blocks, about 4x the map's own memory), allocated only while accumulation is
-  /// on, and counted by insert_scan() in a second pass over the rays on the calling thread
-  /// (which costs more than the scan itself: docs/benchmarks.md).
+  /// on, and gathered by insert_scan() in its own ray walk, on its threads: a scan with them takes
+  /// about three times as long as one without (docs/benchmarks.md).
   void set_hit_accumulation(bool enabled) override;
   [[nodiscard]] bool get_hit_accumulation() const override;
   [[nodiscard]] std::optional<HitStatistics> hit_statistics(const Eigen::Vector3d& point) const override;

@@ -13,7 +13,7 @@
 // each 8^3 block it crosses, so dense blocks would cost 4 KiB a block for a few voxels. Why
 // 2 x 2 x 1: the ground and most surfaces lie closer to horizontal than to vertical, and this shape
 // fills fewest cells on the synthetic and the Ouster scans of any 4-voxel shape (figures in
-// docs/benchmarks.md). A block filled by free space costs 8 bytes a voxel plus its 192-byte header.
+// docs/benchmark-log.md, 2026-11-21). A block filled by free space costs 8 bytes a voxel plus its 192-byte header.
 //
 // A voxel is 8 bytes: float log-odds, uint16 count and 2 spare bytes, log-odds and count in one
 // cache line so that an update costs one cache miss. A count of 0 means "unknown"; every observed

@@ -73,9 +73,9 @@ class FlatKeyMap {
   };
 
   // The table is kept at most a quarter full (insert() grows it beyond): short probe runs are worth
-  // 64-128 bytes of index a block instead of 32-64 (docs/benchmarks.md). Small tables grow
-  // fourfold (fewer rehashes while a map fills); from kFourfoldUpTo slots (1 MiB) on, twofold,
-  // which keeps a large map's index at the quarter-full bound.
+  // 64-128 bytes of index a block instead of 32-64 (docs/benchmark-log.md, 2026-11-24). Small
+  // tables grow fourfold (fewer rehashes while a map fills); from kFourfoldUpTo slots (1 MiB) on,
+  // twofold, which keeps a large map's index at the quarter-full bound.
   static constexpr std::size_t kFourfoldUpTo = std::size_t{1} << 16;
   void grow() {
     std::vector<Slot> old(slots_.size() * (slots_.size() < kFourfoldUpTo ? 4 : 2), Slot{});
