@@ -44,7 +44,7 @@ FLOORS = {"model": 0, "storage": 1, "integrate": 2, "backends": 3,
           "async": 4, "grids": 4, "io": 4, "sonar": 4, "sim": 4}
 # Public headers without a source file of the same name.
 PUBLIC_FLOORS = {"version.h": 0, "voxel_state.h": 0, "ray_caster.h": 0, "stop_token.h": 0, "hit_statistics.h": 0,
-                 "map_memory.h": 1, "background_job.h": 4, "optimizer.h": 4}
+                 "scan_phases.h": 0, "map_memory.h": 1, "background_job.h": 4, "optimizer.h": 4}
 
 # The core's private headers that the backends of other layers build on, and those layers.
 BACKEND_KIT_LAYERS = {"octomap", "mpi"}
@@ -53,7 +53,7 @@ BACKEND_KIT = {
     "backends/disk/file_io.h", "backends/disk/map_directory.h", "backends/disk/map_manifest.h",
     "backends/disk/tile_file.h",
     "integrate/absolute_log_odds.h", "integrate/batch_input.h", "integrate/hit_accumulator.h",
-    "integrate/progress_report.h", "integrate/scan_apply.h", "integrate/scan_scratch.h", "integrate/updater.h",
+    "integrate/phase_clock.h", "integrate/progress_report.h", "integrate/scan_apply.h", "integrate/scan_scratch.h", "integrate/updater.h",
     "integrate/voxel_update.h",
     "model/checks.h", "model/probability_above.h",
     "storage/block_grid.h", "storage/free_memory.h", "storage/grid_reads.h",

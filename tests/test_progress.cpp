@@ -3,13 +3,17 @@
 // flush() and of export_octomap(): the stages in order, from 0 to their total without going back,
 // on the calling thread, many reports within one large scan, and maps identical to those made
 // without a callback. A callback that throws cancels a scan while rays are cast (map unchanged)
-// or an export (no file), and does not cut a voxel update short.
+// or an export (no file), and does not cut a voxel update short. The phases of the last scan
+// (get_last_scan_phases()) on every backend and on the default insert_scan() of a backend of one's
+// own, and Amdahl's arithmetic on them.
 
 #include "backend_test_support.h"
+#include "reference_api_double.h"
 
 #include <iwlomap/outofcore_tile_mapper.h>
 #include <iwlomap/probability_updater.h>
 #include <iwlomap/progress.h>
+#include <iwlomap/scan_phases.h>
 #include <iwlomap/synthetic_scan.h>
 #ifdef IWLOMAP_TEST_WITH_OCTOMAP
 #include <iwlomap/octomap/octree_mapper.h>
@@ -180,6 +184,81 @@ TEST(Progress, ExportReportsBlocksAndAThrowLeavesNoFile) {
   EXPECT_FALSE(std::filesystem::exists(dir.sub("cancelled.bt.part")));
 }
 #endif
+
+// The phases of one scan of \p map on \p threads threads: each measured, none longer than the call,
+// the parallel ones and the serial rest adding up to the call, and the merge only where there is
+// one (threads, or hit statistics).
+void expect_scan_phases(IMapperBackend& map, int threads) {
+  map.set_num_threads(threads);
+  map.insert_scan(scan().origin, scan().points, scan().intensities, -1.0);
+  const ScanPhaseTimes& p = map.get_last_scan_phases();
+  const std::string what = map.get_backend_type() + ", " + std::to_string(threads) + " thread(s)";
+  EXPECT_EQ(p.threads, threads) << what;
+  EXPECT_GT(p.total, 0.0) << what;
+  EXPECT_GT(p.casting_rays, 0.0) << what;
+  EXPECT_GT(p.allocating, 0.0) << what << ": a fresh map gains blocks";
+  EXPECT_GT(p.preparing, 0.0) << what;
+  EXPECT_GT(p.updating, 0.0) << what;
+  for (const double phase : {p.casting_rays, p.merging, p.allocating, p.preparing, p.updating})
+    EXPECT_LE(phase, p.total) << what;
+  EXPECT_LE(p.casting_rays + p.merging + p.allocating + p.preparing + p.updating, p.total * (1.0 + 1e-9)) << what;
+  EXPECT_NEAR(p.serial() + p.casting_rays + p.preparing + p.updating, p.total, 1e-9) << what;
+  EXPECT_GE(p.serial(), p.merging + p.allocating - 1e-9) << what;
+  if (threads == 1 && !map.get_hit_accumulation())
+    EXPECT_EQ(p.merging, 0.0) << what;
+  else
+    EXPECT_GT(p.merging, 0.0) << what;
+}
+
+TEST(ScanPhases, EveryBackendTimesItsPhases) {
+  TempDir dir;
+  for (const int threads : {1, 2}) {
+    std::vector<std::unique_ptr<IMapperBackend>> maps;
+    maps.push_back(std::make_unique<ProbabilityUpdater>(0.2));
+    maps.push_back(std::make_unique<OutofcoreTileMapper>(dir.sub("map" + std::to_string(threads)), 0.2, 5.0));
+#ifdef IWLOMAP_TEST_WITH_OCTOMAP
+    maps.push_back(std::make_unique<OctreeMapper>(0.2));
+#endif
+    for (const auto& map : maps) {
+      EXPECT_EQ(map->get_last_scan_phases().total, 0.0) << map->get_backend_type() << ": no scan yet";
+      expect_scan_phases(*map, threads);
+    }
+  }
+  // With hit statistics the ray ends are merged into them on the calling thread.
+  ProbabilityUpdater with_hits(0.2);
+  with_hits.set_hit_accumulation(true);
+  expect_scan_phases(with_hits, 1);
+}
+
+TEST(ScanPhases, DefaultInsertScanTimesRaysAndBatches) {
+  test_support::ReferenceApiDouble map(0.2);
+  map.insert_scan(scan().origin, scan().points, scan().intensities, -1.0);
+  const ScanPhaseTimes& p = map.get_last_scan_phases();
+  EXPECT_GT(p.casting_rays, 0.0);
+  EXPECT_GT(p.updating, 0.0) << "the batch calls";
+  EXPECT_EQ(p.allocating, 0.0);
+  EXPECT_LE(p.casting_rays + p.updating, p.total);
+}
+
+TEST(ScanPhases, SerialShareAndAmdahl) {
+  ScanPhaseTimes p;
+  EXPECT_EQ(p.serial_share(), 0.0);
+  EXPECT_EQ(p.amdahl_speedup(8), 1.0);
+  p.casting_rays = 0.6;
+  p.preparing = 0.1;
+  p.updating = 0.2;
+  p.merging = 0.02;
+  p.allocating = 0.05;
+  p.total = 1.0;
+  EXPECT_NEAR(p.serial(), 0.1, 1e-12);
+  EXPECT_NEAR(p.serial_share(), 0.1, 1e-12);
+  EXPECT_NEAR(p.amdahl_speedup(1), 1.0, 1e-12);
+  EXPECT_NEAR(p.amdahl_speedup(2), 1.0 / (0.1 + 0.45), 1e-12);
+  EXPECT_NEAR(p.amdahl_speedup(64), 1.0 / (0.1 + 0.9 / 64), 1e-12);
+  EXPECT_NEAR(p.amdahl_speedup(0), 1.0, 1e-12) << "fewer than one thread counts as one";
+  p.total = 0.5;  // clock reads can make the parts add up to more than the call
+  EXPECT_EQ(p.serial(), 0.0);
+}
 
 }  // namespace
 }  // namespace iwlomap

@@ -28,6 +28,7 @@
 #include "iwlomap/iwlo.h"
 #include "iwlomap/progress.h"
 #include "iwlomap/ray_caster.h"
+#include "iwlomap/scan_phases.h"
 #include "iwlomap/voxel_key.h"
 #include "iwlomap/voxel_state.h"
 
@@ -239,9 +240,21 @@ class IMapperBackend {
   /// The callback set by set_progress_callback() (empty: none).
   [[nodiscard]] const ProgressCallback& get_progress_callback() const noexcept { return progress_; }
 
+  /// Where the last insert_scan() of this map spent its time (scan_phases.h): the phases on up to
+  /// get_num_threads() threads and those on the calling thread only, in seconds. All zero before
+  /// the first scan; a scan that throws leaves what it measured. The library's backends and the
+  /// default insert_scan() fill it; a backend of your own whose insert_scan() does not leaves it
+  /// zero. Not covered by the Disk backend's locking: read it on the thread that inserted.
+  [[nodiscard]] const ScanPhaseTimes& get_last_scan_phases() const noexcept { return scan_phases_; }
+
+ protected:
+  /// The record get_last_scan_phases() returns, for a backend's insert_scan() to fill.
+  ScanPhaseTimes& last_scan_phases() noexcept { return scan_phases_; }
+
  private:
   int num_threads_ = 1;
   RayModel ray_model_ = RayModel::kExact;
+  ScanPhaseTimes scan_phases_;
   ProgressCallback progress_;
   IwloParams default_params_;          // the default get_params()
   std::size_t default_skipped_ = 0;    // the default get_num_skipped_points()

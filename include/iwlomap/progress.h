@@ -27,7 +27,7 @@ namespace iwlomap {
 enum class ProgressStage {
   kCastingRays,     ///< insert_scan(): rays walked (units: points)
   kUpdatingVoxels,  ///< insert_scan(): the voxels of the walked rays updated (units: groups of voxels
-                    ///< of 32^3, and one for the hits; Disk backend: the same per group of tiles)
+                    ///< of 32^3, and one at the end; Disk backend: the same per group of tiles)
   kWritingTiles,    ///< Disk backend flush(): changed tiles written (units: tiles)
   kWritingFile,     ///< export_octomap(): the map's blocks written to the file (units: blocks of 8^3)
 };

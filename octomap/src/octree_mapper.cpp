@@ -10,6 +10,7 @@
 #include "integrate/absolute_log_odds.h"
 #include "integrate/batch_input.h"
 #include "integrate/hit_accumulator.h"
+#include "integrate/phase_clock.h"
 #include "integrate/progress_report.h"
 #include "integrate/scan_apply.h"
 #include "integrate/scan_scratch.h"
@@ -327,12 +328,16 @@ void OctreeMapper::batch_update_iwlo(const Eigen::MatrixXd& points, const Eigen:
 void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                const Eigen::VectorXd& intensities, double max_range) {
   Impl& m = impl();
+  ScanPhaseTimes& phases = last_scan_phases();
+  phases = ScanPhaseTimes{};
+  phases.threads = get_num_threads();
+  detail::PhaseClock total(&phases.total);
   detail::check_scan_input(origin, points, intensities, max_range, m.resolution);
   // Rays may be cast on several threads (bit-identical); the octree is then updated on this one.
   const detail::RayStatistics ray_stats{m.updater.params().intensity_threshold};
   const detail::RayStatistics* stats = m.hits.enabled() ? &ray_stats : nullptr;
   const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, get_ray_model(),
-                                             get_num_threads(), &get_progress_callback(), stats);
+                                             get_num_threads(), &get_progress_callback(), stats, &phases);
   // Every voxel the scan would update must have an OctoMap key; checked before anything changes.
   m.scratch.for_each_observation(
       [&](const VoxelKey& block_key, int index) {
@@ -345,7 +350,7 @@ void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::Matri
       });
   // The exact state as the RAM backend lays it out (the same iteration order), mirrored.
   detail::OneGrid locate(m.grid);
-  detail::allocate_scan(m.scratch, m.grid, locate);
+  detail::allocate_scan(m.scratch, m.grid, locate, get_num_threads(), &phases);
   // The octree update is on this thread (an exception of the progress callback is rethrown once
   // the scan is applied in full).
   std::exception_ptr deferred;
@@ -357,10 +362,11 @@ void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::Matri
         m.observe(b, index, key, intensity, occupied, 1.0);
         return false;  // m.observe() counts the map's known voxels itself
       },
-      report);
+      report, 0, &phases.updating);
   m.skipped += skip;
   m.tree_changed();
   m.hits.add_scan(m.scratch.statistics());
+  total.stop();
   if (deferred) std::rethrow_exception(deferred);
 }
 

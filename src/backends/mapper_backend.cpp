@@ -3,6 +3,7 @@
 
 #include "backends/backend_access.h"
 #include "integrate/batch_input.h"
+#include "integrate/phase_clock.h"
 #include "integrate/scan_scratch.h"
 #include "model/checks.h"
 #include "iwlomap/voxel_box.h"
@@ -40,13 +41,19 @@ void IMapperBackend::batch_update_iwlo(const Eigen::MatrixXd& points, const Eige
 
 void IMapperBackend::insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                  const Eigen::VectorXd& intensities, double max_range) {
+  ScanPhaseTimes& phases = last_scan_phases();
+  phases = ScanPhaseTimes{};
+  phases.threads = get_num_threads();
+  detail::PhaseClock total(&phases.total);
   const double r = get_resolution();
   detail::check_scan_input(origin, points, intensities, max_range, r);
   detail::ScanScratch scratch;
-  const std::size_t skipped =
-      scratch.collect(origin, points, intensities, max_range, r, get_ray_model(), get_num_threads(),
-                      &get_progress_callback());
-  detail::apply_scratch_by_batches(*this, scratch);
+  const std::size_t skipped = scratch.collect(origin, points, intensities, max_range, r, get_ray_model(),
+                                              get_num_threads(), &get_progress_callback(), nullptr, &phases);
+  {
+    detail::PhaseClock updating(&phases.updating);
+    detail::apply_scratch_by_batches(*this, scratch);
+  }
   default_skipped_ += skipped;
 }
 

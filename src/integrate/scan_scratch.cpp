@@ -2,6 +2,8 @@
 #include "integrate/scan_scratch.h"
 
 #include "integrate/batch_input.h"
+#include "integrate/parallel_pieces.h"
+#include "integrate/phase_clock.h"
 #include "integrate/progress_report.h"
 #include "storage/free_memory.h"
 #include "storage/memory_limit.h"
@@ -33,23 +35,32 @@ std::size_t ScanScratch::chunk(const VoxelKey& chunk_key) {
 }
 
 void ScanScratch::add_hit(const VoxelKey& k, double intensity) {
-  const auto next = static_cast<std::uint32_t>(hits_.size());
-  const std::uint32_t i = hit_index_.insert(k, next);
-  if (i == next) {
-    hits_.push_back({k, intensity});
-    const std::size_t c = chunk({k.x >> kChunkShift, k.y >> kChunkShift, k.z >> kChunkShift});
-    const std::size_t bit = bit_in_chunk(k);
-    chunks_[c].hit[bit >> 6] |= std::uint64_t{1} << (bit & 63);
-  } else if (intensity > hits_[i].intensity) {
-    hits_[i].intensity = intensity;
+  Chunk& c = chunks_[chunk({k.x >> kChunkShift, k.y >> kChunkShift, k.z >> kChunkShift})];
+  const auto bit = static_cast<std::uint32_t>(bit_in_chunk(k));
+  c.hit[bit >> 6] |= std::uint64_t{1} << (bit & 63);
+  c.hits.push_back({bit, intensity});
+}
+
+void ScanScratch::largest_intensities(const Chunk& c, std::vector<double>& best) {
+  // Hit bits below each word, then each record's slot by one more popcount.
+  std::array<std::uint32_t, kBlocksPerChunk * kWordsPerBlock> below;
+  std::uint32_t n = 0;
+  for (std::size_t w = 0; w < c.hit.size(); ++w) {
+    below[w] = n;
+    n += static_cast<std::uint32_t>(popcount64(c.hit[w]));
+  }
+  best.assign(n, -std::numeric_limits<double>::infinity());
+  for (const HitRecord& r : c.hits) {
+    const std::size_t w = r.bit >> 6;
+    const std::uint64_t lower = c.hit[w] & ((std::uint64_t{1} << (r.bit & 63)) - 1);
+    double& b = best[below[w] + static_cast<std::uint32_t>(popcount64(lower))];
+    if (r.intensity > b) b = r.intensity;
   }
 }
 
 void ScanScratch::clear() {
   chunks_.clear();
   chunk_index_.clear_keep_capacity();
-  hits_.clear();
-  hit_index_.clear_keep_capacity();
   last_ = -1;
   has_statistics_ = false;
 }
@@ -193,26 +204,36 @@ std::size_t ScanScratch::collect_range(const Eigen::Vector3d& origin, const Eige
   return skipped;
 }
 
-void ScanScratch::merge(const ScanScratch& other) {
-  for (const Chunk& c : other.chunks_) {
-    Chunk& mine = chunks_[chunk(c.key)];
-    for (std::size_t w = 0; w < c.free.size(); ++w) {
-      mine.free[w] |= c.free[w];
-      mine.hit[w] |= c.hit[w];
-    }
+void ScanScratch::merge_helpers(std::size_t count, std::size_t threads) {
+  for (std::size_t k = 0; k < count; ++k) {
+    const std::vector<Chunk>& from = helpers_[k].chunks_;
+    merge_slots_.resize(from.size());
+    for (std::size_t i = 0; i < from.size(); ++i) merge_slots_[i] = static_cast<std::uint32_t>(chunk(from[i].key));
+    // One helper's chunks are distinct, so the pieces write distinct chunks of this scratch.
+    parallel_pieces(from.size(), 16, threads, [&](std::size_t, std::size_t begin, std::size_t end) {
+      for (std::size_t i = begin; i < end; ++i) {
+        const Chunk& c = from[i];
+        Chunk& mine = chunks_[merge_slots_[i]];
+        for (std::size_t w = 0; w < c.free.size(); ++w) {
+          mine.free[w] |= c.free[w];
+          mine.hit[w] |= c.hit[w];
+        }
+        mine.hits.insert(mine.hits.end(), c.hits.begin(), c.hits.end());
+      }
+    });
   }
-  for (const Hit& h : other.hits_) add_hit(h.key, h.intensity);
 }
 
 std::size_t ScanScratch::collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                  const Eigen::VectorXd& intensities, double max_range, double resolution,
                                  RayModel rays, int threads, const ProgressCallback* progress,
-                                 const RayStatistics* stats) {
+                                 const RayStatistics* stats, ScanPhaseTimes* phases) {
   clear();
   if (stats != nullptr) ray_hits_.reset(resolution);
-  const std::size_t skipped =
-      cast_rays(origin, points, intensities, max_range, resolution, rays, threads, progress, stats != nullptr);
+  const std::size_t skipped = cast_rays(origin, points, intensities, max_range, resolution, rays, threads, progress,
+                                        stats != nullptr, phases);
   if (stats != nullptr) {
+    PhaseClock merging(phases ? &phases->merging : nullptr);
     add_ray_ends(origin, points, intensities, max_range, resolution, *stats);
     has_statistics_ = true;
   }
@@ -241,7 +262,9 @@ void ScanScratch::add_ray_ends(const Eigen::Vector3d& origin, const Eigen::Matri
 
 std::size_t ScanScratch::cast_rays(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                    const Eigen::VectorXd& intensities, double max_range, double resolution,
-                                   RayModel rays, int threads, const ProgressCallback* progress, bool visits) {
+                                   RayModel rays, int threads, const ProgressCallback* progress, bool visits,
+                                   ScanPhaseTimes* phases) {
+  PhaseClock casting(phases ? &phases->casting_rays : nullptr);
   const Eigen::Index n = points.rows();
   StageProgress report(progress, ProgressStage::kCastingRays, static_cast<std::size_t>(n));
   // Below a few thousand rays a thread costs more than it saves.
@@ -302,15 +325,15 @@ std::size_t ScanScratch::cast_rays(const Eigen::Vector3d& origin, const Eigen::M
   }
   work(*this, 0);  // the calling thread casts into this scratch directly
   for (auto& w : workers) w.join();
+  casting.stop();
+  PhaseClock merging(phases ? &phases->merging : nullptr);
   for (const std::exception_ptr& e : failed)
     if (e) std::rethrow_exception(e);
   const Eigen::Index bad = *std::min_element(first_bad.begin(), first_bad.end());
   if (bad < n) throw_out_of_range(bad, points.row(bad).transpose(), resolution);
   std::size_t total = skipped[0];
-  for (int k = 1; k < t; ++k) {
-    merge(helpers_[static_cast<std::size_t>(k - 1)]);
-    total += skipped[static_cast<std::size_t>(k)];
-  }
+  for (int k = 1; k < t; ++k) total += skipped[static_cast<std::size_t>(k)];
+  merge_helpers(static_cast<std::size_t>(t - 1), static_cast<std::size_t>(t));
   if (visits)  // counts: the same sums in any order
     for (const ScanScratch& h : helpers_) ray_hits_.add_visits(h.ray_hits_);
   report.finish();
@@ -318,21 +341,24 @@ std::size_t ScanScratch::cast_rays(const Eigen::Vector3d& origin, const Eigen::M
 }
 
 std::size_t ScanScratch::bytes() const noexcept {
-  std::size_t b = chunks_.capacity() * sizeof(Chunk) + hits_.capacity() * sizeof(Hit) + chunk_index_.bytes() +
-                  hit_index_.bytes() + helpers_.capacity() * sizeof(ScanScratch);
+  std::size_t b = chunks_.capacity() * sizeof(Chunk) + chunk_index_.bytes() + helpers_.capacity() * sizeof(ScanScratch);
+  for (const Chunk& c : chunks_) b += c.hits.capacity() * sizeof(HitRecord);
   for (const ScanScratch& h : helpers_) b += h.bytes();
+  b += work_.masks.capacity() * sizeof(CellMask) + work_.growths.capacity() * sizeof(work_.growths[0]) +
+       merge_slots_.capacity() * sizeof(std::uint32_t);
   return b + ray_hits_.bytes();
 }
 
 void ScanScratch::release() {
   free_memory(chunks_);
-  free_memory(hits_);
   chunk_index_.reset();
-  hit_index_.reset();
   last_ = -1;
   free_memory(helpers_);
   ray_hits_ = ScanHits();
   has_statistics_ = false;
+  free_memory(work_.masks);
+  free_memory(work_.growths);
+  free_memory(merge_slots_);
 }
 
 }  // namespace iwlomap::detail

@@ -4,7 +4,8 @@
 // Per-scan scratch for insert_scan(): it turns the rays of one scan into at most one observation
 // per voxel before any backend storage is touched. Free voxels are bits in the masks of 32^3-voxel
 // chunks (a ray step costs a bit-set, and a hash look-up only when the ray enters another chunk,
-// about every 40 steps); hits keep the largest intensity per voxel. Inside a chunk the bits are
+// about every 40 steps); each chunk lists its hits (voxel, intensity) as the rays bring them, and a
+// hit voxel takes the largest intensity of its list when the scratch is read. Inside a chunk the bits are
 // laid out block by block (64 blocks of 8^3 voxels, 512 bits each), so that applying the scratch
 // visits each grid block once. Occupied wins over free. Because OR and max commute, the result
 // does not depend on the order of the rays, which is what lets rays be cast in any order or on
@@ -15,12 +16,14 @@
 #include "storage/flat_key_map.h"
 #include "iwlomap/progress.h"
 #include "iwlomap/ray_caster.h"
+#include "iwlomap/scan_phases.h"
 #include "iwlomap/voxel_key.h"
 
 #include <Eigen/Core>
 
 #include <algorithm>
 #include <array>
+#include <limits>
 #include <tuple>
 #include <cstddef>
 #include <cstdint>
@@ -44,14 +47,16 @@ class ScanScratch {
   static constexpr int kBlocksPerChunkEdge = 1 << (kChunkShift - kBlockShift);  // 4
   static constexpr int kBlocksPerChunk = kBlocksPerChunkEdge * kBlocksPerChunkEdge * kBlocksPerChunkEdge;
   static constexpr int kWordsPerBlock = kBlockVoxels / 64;  // 8
+  // One ray's end in a chunk: the voxel's bit (bit_in_chunk()) and the point's intensity.
+  struct HitRecord {
+    std::uint32_t bit;
+    double intensity;
+  };
   struct Chunk {
     VoxelKey key;  // chunk coordinate (voxel key >> 5)
     std::array<std::uint64_t, kBlocksPerChunk * kWordsPerBlock> free{};  // voxels crossed by a ray
     std::array<std::uint64_t, kBlocksPerChunk * kWordsPerBlock> hit{};   // voxels holding an endpoint
-  };
-  struct Hit {
-    VoxelKey key;
-    double intensity;
+    std::vector<HitRecord> hits;  // every endpoint, in no order; several may share a voxel
   };
 
   /// Casts every ray of one scan into the scratch (cleared first). Inputs must have passed
@@ -64,11 +69,13 @@ class ScanScratch {
   /// ProgressStage::kCastingRays (points walked) from the calling thread; an exception of the
   /// callback ends the collection (the map is untouched, as above). With \p stats, also gathers
   /// the scan's hit statistics (RayStatistics).
-  /// \p rays chooses the voxels a ray marks free (RayModel).
+  /// \p rays chooses the voxels a ray marks free (RayModel). With \p phases, adds the time of the
+  /// ray walk to phases->casting_rays and of the merge (and the statistics' ray ends) to
+  /// phases->merging.
   std::size_t collect(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                       const Eigen::VectorXd& intensities, double max_range, double resolution, RayModel rays,
                       int threads = 1, const ProgressCallback* progress = nullptr,
-                      const RayStatistics* stats = nullptr);
+                      const RayStatistics* stats = nullptr, ScanPhaseTimes* phases = nullptr);
 
   /// Calls fn(block_key, cells) for every grid block (8^3) that holds an observation, free or
   /// hit, with \p cells (a CellMask) holding each cell of the block (see index_in_block()) that
@@ -77,6 +84,15 @@ class ScanScratch {
   /// identical for any thread count.
   template <class Fn>
   void for_each_block(Fn&& fn) const {
+    for (const std::size_t ci : chunk_order()) {
+      for (int b = 0; b < kBlocksPerChunk; ++b) {
+        const CellMask cells = block_cells(ci, b);
+        if (cells.any()) fn(block_key(ci, b), cells);
+      }
+    }
+  }
+  /// The chunks in (z, y, x) order of their keys, the order of for_each_block().
+  [[nodiscard]] std::vector<std::size_t> chunk_order() const {
     std::vector<std::size_t> order(chunks_.size());
     for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
     std::sort(order.begin(), order.end(), [this](std::size_t a, std::size_t b) {
@@ -84,18 +100,28 @@ class ScanScratch {
       const VoxelKey& kb = chunks_[b].key;
       return std::tie(ka.z, ka.y, ka.x) < std::tie(kb.z, kb.y, kb.x);
     });
-    for (const std::size_t ci : order) {
-      const Chunk& c = chunks_[ci];
-      for (int b = 0; b < kBlocksPerChunk; ++b) {
-        CellMask cells;
-        for (int w = 0; w < kWordsPerBlock; ++w) {
-          const std::size_t word = static_cast<std::size_t>(b * kWordsPerBlock + w);
-          cells |= cells_of_mask_word(c.free[word] | c.hit[word], w);
-        }
-        if (cells.any()) fn(block_key_of(c, b), cells);
-      }
-    }
+    return order;
   }
+  /// Block \p b (0 .. kBlocksPerChunk - 1) of chunk \p ci: its key, and the cells that hold an
+  /// observation (free or hit).
+  [[nodiscard]] VoxelKey block_key(std::size_t ci, int b) const noexcept { return block_key_of(chunks_[ci], b); }
+  [[nodiscard]] CellMask block_cells(std::size_t ci, int b) const noexcept {
+    const Chunk& c = chunks_[ci];
+    CellMask cells;
+    for (int w = 0; w < kWordsPerBlock; ++w) {
+      const std::size_t word = static_cast<std::size_t>(b * kWordsPerBlock + w);
+      cells |= cells_of_mask_word(c.free[word] | c.hit[word], w);
+    }
+    return cells;
+  }
+
+  /// Buffers of allocate_scan() (scan_apply.h), kept with the scratch so that they are reused from
+  /// scan to scan and freed with it: each chunk's block cell masks, and the cell growths of a pass.
+  struct AllocationWork {
+    std::vector<CellMask> masks;  // kBlocksPerChunk per chunk, in chunk order
+    std::vector<BlockGrid::CellGrowth> growths;  // tag: the block's index in masks
+  };
+  [[nodiscard]] AllocationWork& allocation_work() const noexcept { return work_; }
 
   /// The free-voxel part of for_each_observation() restricted to chunks [begin, end), for
   /// backends that apply disjoint chunk ranges on several threads.
@@ -112,6 +138,48 @@ class ScanScratch {
             const int bit = __builtin_ctzll(bits);
             bits &= bits - 1;
             free_fn(block_key, w * 64 + bit);
+          }
+        }
+      }
+    }
+  }
+
+  /// Calls fn(block_key) for every grid block of chunk \p ci that holds an observation, free or hit.
+  template <class Fn>
+  void for_each_block_in(std::size_t ci, Fn&& fn) const {
+    const Chunk& c = chunks_[ci];
+    for (int b = 0; b < kBlocksPerChunk; ++b) {
+      std::uint64_t any = 0;
+      for (int w = 0; w < kWordsPerBlock; ++w) {
+        const std::size_t word = static_cast<std::size_t>(b * kWordsPerBlock + w);
+        any |= c.free[word] | c.hit[word];
+      }
+      if (any != 0) fn(block_key_of(c, b));
+    }
+  }
+
+  /// Every observation of chunks [begin, end), grid block by grid block: for each block, \p free_fn
+  /// (block_key, index_in_block) for every free voxel that holds no hit, then \p hit_fn(block_key,
+  /// index_in_block, intensity) for every hit voxel with its largest intensity. A chunk's blocks
+  /// belong to no other chunk, so threads may apply disjoint chunk ranges.
+  template <class FreeFn, class HitFn>
+  void for_each_observation_in(std::size_t begin, std::size_t end, FreeFn&& free_fn, HitFn&& hit_fn) const {
+    std::vector<double> best;  // the chunk's hit voxels' intensities, in bit order
+    for (std::size_t ci = begin; ci < end; ++ci) {
+      const Chunk& c = chunks_[ci];
+      largest_intensities(c, best);
+      std::size_t next_hit = 0;
+      for (int b = 0; b < kBlocksPerChunk; ++b) {
+        const VoxelKey block_key = block_key_of(c, b);
+        for (int w = 0; w < kWordsPerBlock; ++w) {
+          const std::size_t word = static_cast<std::size_t>(b * kWordsPerBlock + w);
+          for (std::uint64_t bits = c.free[word] & ~c.hit[word]; bits != 0; bits &= bits - 1)
+            free_fn(block_key, w * 64 + __builtin_ctzll(bits));
+        }
+        for (int w = 0; w < kWordsPerBlock; ++w) {
+          for (std::uint64_t bits = c.hit[static_cast<std::size_t>(b * kWordsPerBlock + w)]; bits != 0; bits &= bits - 1) {
+            const int index = w * 64 + __builtin_ctzll(bits);
+            hit_fn(block_key, index, best[next_hit++]);
           }
         }
       }
@@ -139,7 +207,6 @@ class ScanScratch {
   [[nodiscard]] std::size_t num_chunks() const noexcept { return chunks_.size(); }
   /// The hit statistics of the last collect() that was asked for them (RayStatistics), else null.
   [[nodiscard]] const ScanHits* statistics() const noexcept { return has_statistics_ ? &ray_hits_ : nullptr; }
-  [[nodiscard]] const std::vector<Hit>& hits() const noexcept { return hits_; }
 
   /// Calls free_fn(block_key, index_in_block) once per free voxel that holds no hit, grouped by
   /// grid block (8^3) so consecutive calls share a block, then hit_fn(key, intensity) once per
@@ -150,10 +217,19 @@ class ScanScratch {
     for_each_hit(hit_fn);
   }
 
-  /// The hit part of for_each_observation().
+  /// The hit part of for_each_observation(): hit_fn(key, intensity) once per hit voxel, with its
+  /// largest intensity, chunk by chunk.
   template <class HitFn>
   void for_each_hit(HitFn&& hit_fn) const {
-    for (const Hit& h : hits_) hit_fn(h.key, h.intensity);
+    std::vector<double> best;
+    for (const Chunk& c : chunks_) {
+      largest_intensities(c, best);
+      std::size_t next_hit = 0;
+      for (std::size_t w = 0; w < c.hit.size(); ++w)
+        for (std::uint64_t bits = c.hit[w]; bits != 0; bits &= bits - 1)
+          hit_fn(voxel_in_chunk(c, static_cast<unsigned>(w * 64) + static_cast<unsigned>(__builtin_ctzll(bits))),
+                 best[next_hit++]);
+    }
   }
 
   /// Bytes held by the scratch buffers (kept between scans to avoid reallocation).
@@ -174,11 +250,20 @@ class ScanScratch {
                             const Eigen::VectorXd& intensities, double max_range, double resolution,
                             RayModel rays, Eigen::Index begin, Eigen::Index end, Eigen::Index* first_bad,
                             bool visits);
-  void merge(const ScanScratch& other);
+  // Takes in the first \p count helpers' rays: new chunks added on this thread, then on up to
+  // \p threads threads (each chunk on one) their bits ORed and their hit lists appended.
+  void merge_helpers(std::size_t count, std::size_t threads);
+  // Fills \p best with the largest intensity of each hit voxel of \p c, in bit order: the k-th
+  // set bit of c.hit gets best[k]. A record's slot is the count of hit bits below its own.
+  static void largest_intensities(const Chunk& c, std::vector<double>& best);
+  // The key of the voxel of bit \p bit of chunk \p c (the inverse of bit_in_chunk()).
+  [[nodiscard]] static VoxelKey voxel_in_chunk(const Chunk& c, unsigned bit) noexcept {
+    return voxel_of(block_key_of(c, static_cast<int>(bit / kBlockVoxels)), static_cast<int>(bit % kBlockVoxels));
+  }
   // collect() without clearing first, counting visits as collect_range() does.
   std::size_t cast_rays(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                         const Eigen::VectorXd& intensities, double max_range, double resolution, RayModel rays,
-                        int threads, const ProgressCallback* progress, bool visits);
+                        int threads, const ProgressCallback* progress, bool visits, ScanPhaseTimes* phases);
   void add_ray_ends(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                     double max_range, double resolution, const RayStatistics& stats);
 
@@ -213,12 +298,12 @@ class ScanScratch {
 
   std::vector<Chunk> chunks_;
   FlatKeyMap chunk_index_;
-  std::vector<Hit> hits_;
-  FlatKeyMap hit_index_;
   std::int64_t last_ = -1;
   std::vector<ScanScratch> helpers_;  // per-thread scratches, kept between scans
+  std::vector<std::uint32_t> merge_slots_;  // merge_helpers(): this scratch's chunk of each helper chunk
   ScanHits ray_hits_;                 // RayStatistics (a helper's: its visits only)
   bool has_statistics_ = false;
+  mutable AllocationWork work_;  // a workspace, not part of the scan's observations
 };
 
 }  // namespace iwlomap::detail

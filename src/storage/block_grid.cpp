@@ -155,28 +155,38 @@ VoxelBlock& BlockGrid::get_or_create_missed(const VoxelKey& block_key, std::size
 }
 
 void BlockGrid::add_cells(VoxelBlock& b, const CellMask& added) {
-  // New cells go to the end of the block's array, so no cell ever moves within it; the array
-  // doubles when full (one copy of the cells, amortised below one per added cell).
+  const CellGrowth g = reserve_cells(b, added);
+  finish_cells(g, added);
+  release_old_cells(g);
+}
+
+// New cells go to the end of the block's array, so no cell ever moves within it; the array
+// doubles when full (one copy of the cells, amortised below one per added cell).
+BlockGrid::CellGrowth BlockGrid::reserve_cells(VoxelBlock& b, const CellMask& added) {
   const int old_count = b.num_cells();
   const int count = old_count + added.count();
-  const int old_class = CellPool::class_of(old_count);
+  const CellGrowth g{&b, b.cells, old_count, 0};
   const int new_class = CellPool::class_of(count);
-  if (b.cells == nullptr || new_class != old_class) {
-    Cell* const to = cells_pool_->allocate(new_class);
-    if (b.cells != nullptr) {
-      std::memcpy(to, b.cells, sizeof(Cell) * static_cast<std::size_t>(old_count));
-      cells_pool_->free(b.cells, old_class);
-    }
-    b.cells = to;
-  }
-  int at = old_count;
+  if (b.cells == nullptr || new_class != CellPool::class_of(old_count)) b.cells = cells_pool_->allocate(new_class);
+  cells_ += static_cast<std::size_t>(count - old_count);
+  return g;
+}
+
+void BlockGrid::finish_cells(const CellGrowth& g, const CellMask& added) noexcept {
+  VoxelBlock& b = *g.block;
+  if (g.from != nullptr && g.from != b.cells)
+    std::memcpy(static_cast<void*>(b.cells), g.from, sizeof(Cell) * static_cast<std::size_t>(g.old_count));
+  int at = g.old_count;
   added.for_each([&](int c) {
     new (&b.cells[at]) Cell{};
     b.position[static_cast<std::size_t>(c)] = static_cast<std::uint8_t>(at);
     ++at;
   });
   b.cell_mask |= added;
-  cells_ += static_cast<std::size_t>(count - old_count);
+}
+
+void BlockGrid::release_old_cells(const CellGrowth& g) noexcept {
+  if (g.from != nullptr && g.from != g.block->cells) cells_pool_->free(g.from, CellPool::class_of(g.old_count));
 }
 
 BlockGrid BlockGrid::clone() const {

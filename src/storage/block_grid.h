@@ -307,6 +307,27 @@ class BlockGrid {
     return true;
   }
 
+  /// The cells a block gains in one allocation, between reserve_cells() and finish_cells().
+  struct CellGrowth {
+    VoxelBlock* block;
+    Cell* from;              // the block's array before (nullptr: none); b.cells when it did not change
+    std::int32_t old_count;  // cells before
+    std::uint32_t tag;       // the caller's, unused here
+  };
+  /// The bookkeeping half of ensure_cells() for \p added (cells that \p b lacks): when b's array
+  /// must grow, b.cells becomes a new array of the larger size class. Writes no cell and leaves
+  /// b.cell_mask and b.position as they were, so \p b must not be read or written until
+  /// finish_cells(). Throws std::bad_alloc or MemoryLimitError with \p b unchanged.
+  CellGrowth reserve_cells(VoxelBlock& b, const CellMask& added);
+  /// The other half, for the same \p added: moves b's old cells into the new array, zero-fills
+  /// the added cells and records their positions and mask. It touches \p g.block and its arrays
+  /// only, so different blocks may be finished on different threads at once.
+  static void finish_cells(const CellGrowth& g, const CellMask& added) noexcept;
+  /// After finish_cells(): the old array, if b's array changed, goes back to this grid's pool. Old
+  /// arrays are given back only once every growth of a pass is finished, since another block's
+  /// reserve_cells() may take a freed array.
+  void release_old_cells(const CellGrowth& g) noexcept;
+
   /// Voxel \p index of \p b, allocating its cell if needed (which may move b's other cells).
   Voxel& voxel(VoxelBlock& b, int index) {
     ensure_cells(b, CellMask::of(index >> kCellShift));

@@ -120,5 +120,40 @@ TEST(ScanScratch, MergedThreadsEqualOneThreadWhenCollectingAScan) {
   }
 }
 
+// Several rays end in most voxels, with random intensities: each hit voxel takes the largest of
+// its rays' intensities, for any thread count, the same through for_each_hit() and through the
+// chunk-by-chunk for_each_observation_in() that the scan kernel reads.
+TEST(ScanScratch, HitsTakeTheLargestIntensityOfTheirVoxel) {
+  std::mt19937 rng(77u);
+  std::uniform_real_distribution<double> coord(-6.0, 6.0), level(-50.0, 300.0);
+  const Eigen::Index n = 20000;
+  Eigen::MatrixXd points(n, 3);
+  Eigen::VectorXd intensities(n);
+  std::map<std::tuple<int, int, int>, double> expected;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    // Points snapped to a 1 m lattice (13^3 voxels), so about nine share each voxel.
+    const Eigen::Vector3d p(std::round(coord(rng)) + 0.01, std::round(coord(rng)) + 0.02, std::round(coord(rng)) + 0.03);
+    points.row(i) = p.transpose();
+    intensities[i] = level(rng);
+    const VoxelKey k = world_to_key(p, 0.1);
+    auto [it, fresh] = expected.emplace(std::make_tuple(k.x, k.y, k.z), intensities[i]);
+    if (!fresh) it->second = std::max(it->second, intensities[i]);
+  }
+  ASSERT_LT(expected.size(), static_cast<std::size_t>(n) / 3) << "voxels must hold several points";
+  for (const int threads : {1, 2, 5}) {
+    detail::ScanScratch s;
+    s.collect(Eigen::Vector3d(0.15, 0.25, 0.35), points, intensities, -1.0, 0.1, RayModel::kExact, threads);
+    EXPECT_EQ(observations_of(s).hits, expected) << threads << " thread(s)";
+    std::map<std::tuple<int, int, int>, double> by_chunks;
+    s.for_each_observation_in(
+        0, s.num_chunks(), [](const VoxelKey&, int) {},
+        [&](const VoxelKey& block, int index, double intensity) {
+          const VoxelKey k = detail::voxel_of(block, index);
+          EXPECT_TRUE(by_chunks.emplace(std::make_tuple(k.x, k.y, k.z), intensity).second);
+        });
+    EXPECT_EQ(by_chunks, expected) << threads << " thread(s)";
+  }
+}
+
 }  // namespace
 }  // namespace iwlomap

@@ -18,6 +18,7 @@
 #include "integrate/absolute_log_odds.h"
 #include "integrate/batch_apply.h"
 #include "integrate/batch_input.h"
+#include "integrate/phase_clock.h"
 #include "integrate/block_sorted_batch.h"
 #include "integrate/progress_report.h"
 #include "integrate/scan_apply.h"
@@ -223,8 +224,9 @@ struct OutofcoreTileMapper::Impl {
       const std::uint32_t s = m.routing.find(m.routing.tile_of_block(block_key));
       return s != detail::FlatKeyMap::kEmpty && m.slot_group[s] == group ? m.slot_tile[s] : nullptr;
     }
-    void allocate(const VoxelKey& block_key, const detail::CellMask& cells) {
-      if (detail::Tile* t = tile_of(block_key)) t->grid.ensure_cells(t->grid.get_or_create(block_key), cells);
+    [[nodiscard]] detail::BlockGrid* grid_of(const VoxelKey& block_key) const noexcept {
+      detail::Tile* t = tile_of(block_key);
+      return t != nullptr ? &t->grid : nullptr;
     }
     [[nodiscard]] detail::VoxelBlock* find(const VoxelKey& block_key) const noexcept {
       const detail::Tile* t = tile_of(block_key);
@@ -232,33 +234,17 @@ struct OutofcoreTileMapper::Impl {
     }
   };
 
-  // Gives every tile the scan touches a slot in `routing` (the hits' tiles, then the free
-  // voxels'), and each slot the list of scratch chunks that hold its free voxels (32^3 chunks may
-  // straddle tiles).
+  // Gives every tile the scan touches a slot in `routing`, and each slot the list of scratch
+  // chunks that hold its observations (32^3 chunks may straddle tiles).
   void route_scan(const detail::ScanScratch& scan) {
-    const std::vector<detail::ScanScratch::Hit>& hits = scan.hits();
-    routing.assign(hits.size(), [&](std::size_t i) { return hits[i].key; });
-    const auto grow_lists = [&] {
-      const std::size_t slots = routing.tiles().size();
-      if (slot_chunks.size() < slots) slot_chunks.resize(slots);
-      if (slot_last_chunk.size() < slots) slot_last_chunk.resize(slots);
-    };
-    grow_lists();
-    for (std::size_t s = 0; s < routing.tiles().size(); ++s) {
-      slot_chunks[s].clear();
-      slot_last_chunk[s] = kNoChunk;
-    }
+    routing.reset();
     for (std::size_t ci = 0; ci < scan.num_chunks(); ++ci) {
-      VoxelKey last_block{};
-      bool first = true;
-      scan.for_each_free(ci, ci + 1, [&](const VoxelKey& block_key, int) {
-        if (!first && block_key == last_block) return;
-        first = false;
-        last_block = block_key;
+      scan.for_each_block_in(ci, [&](const VoxelKey& block_key) {
         const std::size_t before = routing.tiles().size();
         const std::uint32_t s = routing.slot(routing.tile_of_block(block_key));
         if (routing.tiles().size() != before) {
-          grow_lists();
+          if (slot_chunks.size() <= s) slot_chunks.resize(s + 1);
+          if (slot_last_chunk.size() <= s) slot_last_chunk.resize(s + 1);
           slot_chunks[s].clear();
           slot_last_chunk[s] = kNoChunk;
         }
@@ -274,15 +260,20 @@ struct OutofcoreTileMapper::Impl {
   // Reports kCastingRays, then kUpdatingVoxels (an exception of the callback there is rethrown once
   // the scan is applied in full).
   void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
-                   double max_range, RayModel rays, int threads, const ProgressCallback* progress) {
+                   double max_range, RayModel rays, int threads, const ProgressCallback* progress,
+                   ScanPhaseTimes& phases) {
+    phases = ScanPhaseTimes{};
+    phases.threads = threads;
+    detail::PhaseClock total(&phases.total);
     detail::check_scan_input(origin, points, intensities, max_range, resolution);
     const detail::RayStatistics ray_stats{updater.params().intensity_threshold};
     const detail::RayStatistics* stats = hit_settings.enabled ? &ray_stats : nullptr;
     const std::size_t skip =
-        scratch.collect(origin, points, intensities, max_range, resolution, rays, threads, progress, stats);
+        scratch.collect(origin, points, intensities, max_range, resolution, rays, threads, progress, stats, &phases);
     std::exception_ptr deferred;
-    apply_collected(scratch, threads, progress, deferred);
+    apply_collected(scratch, threads, progress, deferred, &phases);
     skipped += skip;
+    total.stop();
     if (deferred) std::rethrow_exception(deferred);
   }
 
@@ -291,12 +282,12 @@ struct OutofcoreTileMapper::Impl {
   // map keeps them. Reports kUpdatingVoxels by scratch chunks; an exception of the callback is
   // kept in \p deferred.
   void apply_collected(const detail::ScanScratch& scan, int threads, const ProgressCallback* progress,
-                       std::exception_ptr& deferred) {
+                       std::exception_ptr& deferred, ScanPhaseTimes* phases = nullptr) {
     route_scan(scan);
     const std::size_t slots = routing.tiles().size();
     slot_group.assign(slots, kNoGroup);
     slot_tile.assign(slots, nullptr);
-    // Reported units: each group's chunks and one for its hits; with one group, every chunk.
+    // Reported units: each group's chunks and one at its end; with one group, every chunk.
     std::size_t units = scan.num_chunks() + 1;
     if (slots > cache.capacity()) {
       units = 0;
@@ -313,7 +304,7 @@ struct OutofcoreTileMapper::Impl {
         group[g]->dirty = true;
       }
       TileGroupLocate locate{*this, group_id};
-      detail::allocate_scan(scan, locate);
+      detail::allocate_scan(scan, locate, threads, phases);
       detail::ChunkSelection chunks;
       if (count != slots) {
         group_chunks.clear();
@@ -329,7 +320,7 @@ struct OutofcoreTileMapper::Impl {
           [&u](detail::VoxelBlock& b, int index, const VoxelKey&, double intensity, bool occupied) {
             return detail::observe_voxel(b, b.existing(index), intensity, occupied, 1.0, u);
           },
-          report, reported);
+          report, reported, phases ? &phases->updating : nullptr);
       reported += chunks.size(scan) + 1;
       const detail::ScanHits* h = hit_settings.enabled ? scan.statistics() : nullptr;
       if (h != nullptr) {  // each tile takes its own blocks' statistics

@@ -63,7 +63,8 @@ void OutofcoreTileMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen
   Impl& m = impl();
   std::lock_guard<std::mutex> lock(m.mutex);
   m.check_writable("insert_scan()");
-  m.insert_scan(origin, points, intensities, max_range, get_ray_model(), get_num_threads(), &get_progress_callback());
+  m.insert_scan(origin, points, intensities, max_range, get_ray_model(), get_num_threads(), &get_progress_callback(),
+                last_scan_phases());
 }
 
 void OutofcoreTileMapper::set_params(const IwloParams& params) {

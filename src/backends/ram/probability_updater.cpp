@@ -3,6 +3,7 @@
 
 #include "backends/backend_access.h"
 #include "backends/pimpl.h"
+#include "integrate/phase_clock.h"
 #include "integrate/absolute_log_odds.h"
 #include "integrate/batch_apply.h"
 #include "integrate/batch_input.h"
@@ -100,9 +101,9 @@ namespace {
 // exception of the callback is kept in \p deferred and the scan applied in full.
 template <class Impl>
 void apply_collected(Impl& m, const detail::ScanScratch& scratch, int threads, const ProgressCallback* progress,
-                     std::exception_ptr& deferred) {
+                     std::exception_ptr& deferred, ScanPhaseTimes* phases = nullptr) {
   detail::OneGrid locate(m.grid);
-  detail::allocate_scan(scratch, m.grid, locate);
+  detail::allocate_scan(scratch, m.grid, locate, threads, phases);
   detail::StageProgress report(progress, ProgressStage::kUpdatingVoxels, scratch.num_chunks() + 1, &deferred);
   const detail::Updater& updater = m.updater;
   m.known += detail::apply_scan(
@@ -110,7 +111,7 @@ void apply_collected(Impl& m, const detail::ScanScratch& scratch, int threads, c
       [&updater](detail::VoxelBlock& b, int index, const VoxelKey&, double intensity, bool occupied) {
         return detail::observe_voxel(b, b.existing(index), intensity, occupied, 1.0, updater);
       },
-      report);
+      report, 0, phases ? &phases->updating : nullptr);
 }
 
 }  // namespace
@@ -118,17 +119,22 @@ void apply_collected(Impl& m, const detail::ScanScratch& scratch, int threads, c
 void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                      const Eigen::VectorXd& intensities, double max_range) {
   Impl& m = impl();
+  ScanPhaseTimes& phases = last_scan_phases();
+  phases = ScanPhaseTimes{};
+  phases.threads = get_num_threads();
+  detail::PhaseClock total(&phases.total);
   detail::check_scan_input(origin, points, intensities, max_range, m.resolution);
   const int threads = get_num_threads();
   const ProgressCallback* progress = &get_progress_callback();
   const detail::RayStatistics ray_stats{m.updater.params().intensity_threshold};
   const detail::RayStatistics* stats = m.hits.enabled() ? &ray_stats : nullptr;
   const std::size_t skip = m.scratch.collect(origin, points, intensities, max_range, m.resolution, get_ray_model(),
-                                             threads, progress, stats);
+                                             threads, progress, stats, &phases);
   std::exception_ptr deferred;
-  apply_collected(m, m.scratch, threads, progress, deferred);
+  apply_collected(m, m.scratch, threads, progress, deferred, &phases);
   m.skipped += skip;
   m.hits.add_scan(m.scratch.statistics());
+  total.stop();
   if (deferred) std::rethrow_exception(deferred);
 }
 
