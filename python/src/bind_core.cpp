@@ -13,6 +13,7 @@
 #include <iwlomap/outofcore_tile_mapper.h>
 #include <iwlomap/probability_updater.h>
 #include <iwlomap/ray_caster.h>
+#include <iwlomap/scan_phases.h>
 #include <iwlomap/sensor_preset.h>
 #include <iwlomap/synthetic_scan.h>
 #include <iwlomap/voxel_box.h>
@@ -23,6 +24,7 @@
 #include <pybind11/stl.h>
 
 #include <algorithm>
+#include <string>
 #include <charconv>
 #include <cmath>
 #include <limits>
@@ -170,6 +172,24 @@ void bind_keys(py::module_& m) {
   m.def(
       "key_to_center", [](const VoxelKey& k, double resolution) { return to_numpy(key_to_center(k, resolution)); },
       py::arg("key"), py::arg("resolution"), "The centre of a voxel in metres, map frame.");
+  py::class_<ScanPhaseTimes>(m, "ScanPhaseTimes",
+                             "Where one insert_scan() spent its time, in wall-clock seconds (scan_phases.h).")
+      .def_readonly("casting_rays", &ScanPhaseTimes::casting_rays, "parallel: the rays walked")
+      .def_readonly("merging", &ScanPhaseTimes::merging, "serial: the threads' scratches merged")
+      .def_readonly("allocating", &ScanPhaseTimes::allocating, "serial: the scan's new blocks created")
+      .def_readonly("preparing", &ScanPhaseTimes::preparing, "parallel: the cells gathered and zero-filled")
+      .def_readonly("updating", &ScanPhaseTimes::updating, "parallel: every observed voxel updated")
+      .def_readonly("total", &ScanPhaseTimes::total, "the whole call")
+      .def_readonly("threads", &ScanPhaseTimes::threads, "threads the call could use")
+      .def("serial", &ScanPhaseTimes::serial, "total minus the parallel phases")
+      .def("serial_share", &ScanPhaseTimes::serial_share, "serial() / total")
+      .def("amdahl_speedup", &ScanPhaseTimes::amdahl_speedup, py::arg("threads"),
+           "1 / (s + (1 - s) / threads) for the serial share s")
+      .def("__repr__", [](const ScanPhaseTimes& p) {
+        return "ScanPhaseTimes(total=" + std::to_string(p.total) + " s, serial share " +
+               std::to_string(p.serial_share()) + ", threads=" + std::to_string(p.threads) + ")";
+      });
+
   readable_enum_name(py::enum_<RayModel>(m, "RayModel", "The voxels a ray of insert_scan() marks free.")
       .value("kExact", RayModel::kExact, "every voxel the ray crosses (the default)")
       .value("kFast", RayModel::kFast, "a 26-connected line between voxel centres: fewer steps, fewer free voxels"));
@@ -469,6 +489,11 @@ void bind_backend(py::module_& m) {
           "The voxels insert_scan() marks free: RayModel.kExact (default), every voxel a ray crosses; "
           "RayModel.kFast, a 26-connected line, up to 3x fewer steps and fewer free voxels. Hits are the same.")
       .def("get_ray_model", [](Backend& map) { return unlocked(map, [&] { return map.get_ray_model(); }); })
+      .def(
+          "get_last_scan_phases",
+          [](Backend& map) { return unlocked(map, [&] { return map.get_last_scan_phases(); }); },
+          "Where the last insert_scan() spent its time, in seconds (ScanPhaseTimes): the phases on the threads "
+          "and those on the calling thread, the serial share and Amdahl's projection.")
       .def(
           "set_progress_callback",
           [](Backend& map, const py::object& callback) {

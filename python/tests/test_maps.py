@@ -175,6 +175,22 @@ def test_fast_rays_mark_the_line_of_cast_ray(scan):
         assert one.query(iwlomap.key_to_center(iwlomap.VoxelKey(*map(int, k)), r)).log_odds < 0
 
 
+def test_last_scan_phases_say_where_the_time_went(scan):
+    origin, points, intensities = scan
+    m = lidar_map()
+    assert m.get_last_scan_phases().total == 0.0  # no scan yet
+    m.set_num_threads(2)
+    m.insert_scan(origin, points, intensities)
+    p = m.get_last_scan_phases()
+    assert p.threads == 2
+    assert p.total > 0 and p.casting_rays > 0 and p.updating > 0 and p.allocating > 0
+    assert p.casting_rays + p.merging + p.allocating + p.preparing + p.updating <= p.total * (1 + 1e-9)
+    assert abs(p.serial() + p.casting_rays + p.preparing + p.updating - p.total) < 1e-9
+    s = p.serial_share()
+    assert 0 <= s < 1
+    assert abs(p.amdahl_speedup(16) - 1 / (s + (1 - s) / 16)) < 1e-12
+
+
 def test_hit_statistics_and_mean_positions(scan):
     origin, points, intensities = scan
     m = lidar_map()
