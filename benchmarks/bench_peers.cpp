@@ -55,6 +55,7 @@
 #include <fstream>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <random>
 #include <stdexcept>
 #include <string>
@@ -139,8 +140,9 @@ Options parse_options(int argc, char** argv) {
       o.only = value("--only");
     } else if (a == "--rays") {
       const std::string v = value("--rays");
-      if (v != "exact" && v != "fast") throw std::invalid_argument("--rays must be exact or fast, got '" + v + "'");
-      o.rays = v == "fast" ? iwlomap::RayModel::kFast : iwlomap::RayModel::kExact;
+      const std::optional<iwlomap::RayModel> model = iwlomap::parse_ray_model(v);
+      if (!model) throw std::invalid_argument("--rays must be exact or fast, got '" + v + "'");
+      o.rays = *model;
     } else if (a == "--quick") {
       quick = true;
     } else if (a == "--help" || a == "-h") {

@@ -427,5 +427,14 @@ TEST(CastLine, ArrivesNextToTheEndKeyWhenHundredKilometresAway) {
   for (std::size_t i = 1; i < keys.size(); ++i) ASSERT_EQ(chebyshev(keys[i - 1], keys[i]), 1);
 }
 
+TEST(RayModelNames, ReadBackWhatTheyPrint) {
+  for (const RayModel m : {RayModel::kExact, RayModel::kFast}) EXPECT_EQ(parse_ray_model(ray_model_name(m)), m);
+  EXPECT_STREQ(ray_model_name(RayModel::kExact), "exact");
+  EXPECT_STREQ(ray_model_name(RayModel::kFast), "fast");
+  EXPECT_FALSE(parse_ray_model("Fast").has_value());
+  EXPECT_FALSE(parse_ray_model("").has_value());
+  EXPECT_FALSE(parse_ray_model("exact ").has_value());
+}
+
 }  // namespace
 }  // namespace iwlomap

@@ -13,6 +13,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <optional>
+#include <string_view>
 #include <cstdlib>
 #include <limits>
 #include <utility>
@@ -40,6 +42,18 @@ enum class RayModel : std::uint8_t {
   kExact,
   kFast,
 };
+
+/// The model's name as the tool and the configuration files spell it: "exact" or "fast".
+[[nodiscard]] constexpr const char* ray_model_name(RayModel model) noexcept {
+  return model == RayModel::kFast ? "fast" : "exact";
+}
+
+/// The model named \p name ("exact", "fast"), or nothing.
+[[nodiscard]] inline std::optional<RayModel> parse_ray_model(std::string_view name) noexcept {
+  if (name == "exact") return RayModel::kExact;
+  if (name == "fast") return RayModel::kFast;
+  return std::nullopt;
+}
 
 /// Visits, in order from \p origin, the voxels that the segment origin -> end crosses, starting
 /// with the voxel that contains \p origin and stopping before the voxel that contains \p end (the

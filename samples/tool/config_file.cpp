@@ -70,7 +70,7 @@ std::string config_yaml(const MapSetup& setup, const std::string& command) {
       << "adaptive-threshold: " << shortest(p.adaptive_threshold) << "\n"
       << "adaptive-max-ratio: " << shortest(p.adaptive_max_ratio) << "\n"
       << "no-rays: " << (setup.ray_casting ? "false" : "true") << "\n"
-      << "rays: " << (setup.rays == RayModel::kFast ? "fast" : "exact") << "\n"
+      << "rays: " << ray_model_name(setup.rays) << "\n"
       << "backend: " << setup.backend << "\n"
       << "threads: " << setup.threads << "\n";
   return out.str();

@@ -18,6 +18,7 @@
 #include <charconv>
 #include <cstdio>
 #include <limits>
+#include <optional>
 
 namespace iwlomap::tool {
 
@@ -169,10 +170,9 @@ MapSetup map_setup_from(const Args& args, SensorPreset default_sensor, const std
   s.max_range = args.positive_or_none("--max-range").value_or(-1.0);
   s.ray_casting = !args.flag("--no-rays");
   if (const auto rays = args.value("--rays")) {
-    if (*rays == "fast")
-      s.rays = RayModel::kFast;
-    else if (*rays != "exact")
-      throw UsageError("--rays must be exact or fast, got '" + *rays + "'");
+    const std::optional<RayModel> model = parse_ray_model(*rays);
+    if (!model) throw UsageError("--rays must be exact or fast, got '" + *rays + "'");
+    s.rays = *model;
     // (exact is the default, so --print-config writes it beside no-rays: true; fast asks for rays)
     if (s.rays == RayModel::kFast && !s.ray_casting)
       throw UsageError("--rays fast chooses how rays are cast: it cannot go with --no-rays");
