@@ -4,10 +4,10 @@
 // Per-scan scratch for insert_scan(): it turns the rays of one scan into at most one observation
 // per voxel before any backend storage is touched. Free voxels are bits in the masks of 32^3-voxel
 // chunks (a ray step costs a bit-set, and a hash look-up only when the ray enters another chunk,
-// about every 40 steps); each chunk lists its hits (voxel, intensity) as the rays bring them, and a
-// hit voxel takes the largest intensity of its list when the scratch is read. Inside a chunk the bits are
-// laid out block by block (64 blocks of 8^3 voxels, 512 bits each), so that applying the scratch
-// visits each grid block once. Occupied wins over free. Because OR and max commute, the result
+// about every 40 steps); each chunk lists its hits (voxel, intensity) as the rays bring them, and
+// a hit voxel takes the largest intensity of its list when the scratch is read. Inside a chunk the
+// bits are laid out block by block (64 blocks of 8^3 voxels, 512 bits each), so that applying the
+// scratch visits each grid block once. Occupied wins over free. Because OR and max commute, the result
 // does not depend on the order of the rays, which is what lets rays be cast in any order or on
 // several threads and still give bit-identical maps.
 
@@ -23,7 +23,6 @@
 
 #include <algorithm>
 #include <array>
-#include <limits>
 #include <tuple>
 #include <cstddef>
 #include <cstdint>
