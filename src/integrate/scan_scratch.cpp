@@ -14,8 +14,6 @@
 #include <cmath>
 #include <limits>
 #include <atomic>
-#include <exception>
-#include <thread>
 
 namespace iwlomap::detail {
 
@@ -270,72 +268,51 @@ std::size_t ScanScratch::cast_rays(const Eigen::Vector3d& origin, const Eigen::M
   // Below a few thousand rays a thread costs more than it saves.
   const Eigen::Index useful = std::max<Eigen::Index>(1, n / 2048);
   const int t = static_cast<int>(std::min<Eigen::Index>(std::max(threads, 1), useful));
-  // Rays go in blocks between reports; a block of 4,096 rays takes about a millisecond.
-  constexpr Eigen::Index kReportGrain = 4096;
-  if (t == 1) {
-    if (!report.active())
-      return collect_range(origin, points, intensities, max_range, resolution, rays, 0, n, nullptr, visits);
-    std::size_t skipped = 0;
-    for (Eigen::Index b = 0; b < n; b += kReportGrain) {
-      skipped += collect_range(origin, points, intensities, max_range, resolution, rays, b,
-                               std::min(b + kReportGrain, n), nullptr, visits);
-      report.report(static_cast<std::size_t>(std::min(b + kReportGrain, n)));
-    }
-    report.finish();
-    return skipped;
-  }
-
   // Rays differ in length by an order of magnitude (a scan's lower rings hit the ground near the
   // sensor), so threads take blocks of rays from a shared counter rather than fixed ranges. Which
-  // thread casts which ray does not matter: OR and max do not depend on the order. An
-  // out-of-range point is recorded, not thrown, so the error reported is always the one of the
-  // lowest index, as with one thread.
+  // thread casts which ray does not matter: OR and max do not depend on the order. On several
+  // threads an out-of-range point is recorded, not thrown, so the error reported is always the one
+  // of the lowest index, as with one thread (which throws at once). One thread casts in blocks
+  // between reports (4,096 rays take about a millisecond), or all at once without a callback.
   constexpr Eigen::Index kGrain = 1024;
-  std::atomic<Eigen::Index> next{0};
-  std::atomic<Eigen::Index> finished{0};  // rays cast, for the reports of the calling thread
-  helpers_.resize(static_cast<std::size_t>(t - 1));
+  constexpr Eigen::Index kReportGrain = 4096;
+  const Eigen::Index grain = t > 1 ? kGrain : report.active() ? kReportGrain : std::max<Eigen::Index>(n, 1);
+  const auto helpers = static_cast<std::size_t>(t - 1);
+  if (t > 1) helpers_.resize(helpers);  // kept between scans, like the rest of the scratch
   std::vector<std::size_t> skipped(static_cast<std::size_t>(t), 0);
   std::vector<Eigen::Index> first_bad(static_cast<std::size_t>(t), n);
+  std::vector<char> started(static_cast<std::size_t>(t), 0);  // a helper is cleared by its thread
+  std::atomic<Eigen::Index> finished{0};  // rays cast, for the reports of the calling thread
   // A thread that cannot get memory (the map memory limit, std::bad_alloc) stops the others and
-  // its exception is rethrown on the calling thread once all have joined.
-  std::vector<std::exception_ptr> failed(static_cast<std::size_t>(t));
-  const auto work = [&](ScanScratch& into, std::size_t k) {
-    try {
-      for (Eigen::Index b = next.fetch_add(kGrain); b < n; b = next.fetch_add(kGrain)) {
-        skipped[k] += into.collect_range(origin, points, intensities, max_range, resolution, rays, b,
-                                         std::min(b + kGrain, n), &first_bad[k], visits);
-        const Eigen::Index cast = finished.fetch_add(std::min(b + kGrain, n) - b, std::memory_order_relaxed) +
-                                  std::min(b + kGrain, n) - b;
-        if (k == 0) report.report(static_cast<std::size_t>(cast));  // the calling thread only
-      }
-    } catch (...) {
-      failed[k] = std::current_exception();
-      next.store(n);
-    }
-  };
-  std::vector<std::thread> workers;
-  workers.reserve(static_cast<std::size_t>(t - 1));
-  for (int k = 1; k < t; ++k) {
-    const auto idx = static_cast<std::size_t>(k);
-    workers.emplace_back([&, idx] {
-      helpers_[idx - 1].clear();
-      if (visits) helpers_[idx - 1].ray_hits_.reset(resolution);  // each counts its own visits
-      work(helpers_[idx - 1], idx);
-    });
+  // its exception is rethrown here once all have joined (parallel_pieces()).
+  parallel_pieces(static_cast<std::size_t>(n), static_cast<std::size_t>(grain), static_cast<std::size_t>(t),
+                  [&](std::size_t k, std::size_t begin, std::size_t end) {
+                    ScanScratch& into = k == 0 ? *this : helpers_[k - 1];
+                    if (k > 0 && !started[k]) {
+                      into.clear();
+                      if (visits) into.ray_hits_.reset(resolution);  // each counts its own visits
+                      started[k] = 1;
+                    }
+                    const auto b = static_cast<Eigen::Index>(begin), e = static_cast<Eigen::Index>(end);
+                    skipped[k] += into.collect_range(origin, points, intensities, max_range, resolution, rays, b, e,
+                                                     t > 1 ? &first_bad[k] : nullptr, visits);
+                    const Eigen::Index cast = finished.fetch_add(e - b, std::memory_order_relaxed) + (e - b);
+                    if (k == 0) report.report(static_cast<std::size_t>(cast));  // the calling thread only
+                  });
+  for (std::size_t k = 1; k < started.size(); ++k) {
+    if (started[k]) continue;
+    helpers_[k - 1].clear();  // a thread that got no rays: its helper holds the last scan's
+    if (visits) helpers_[k - 1].ray_hits_.reset(resolution);
   }
-  work(*this, 0);  // the calling thread casts into this scratch directly
-  for (auto& w : workers) w.join();
   casting.stop();
-  PhaseClock merging(phases ? &phases->merging : nullptr);
-  for (const std::exception_ptr& e : failed)
-    if (e) std::rethrow_exception(e);
+  PhaseClock merging(phases != nullptr && t > 1 ? &phases->merging : nullptr);  // one thread: nothing to merge
   const Eigen::Index bad = *std::min_element(first_bad.begin(), first_bad.end());
   if (bad < n) throw_out_of_range(bad, points.row(bad).transpose(), resolution);
-  std::size_t total = skipped[0];
-  for (int k = 1; k < t; ++k) total += skipped[static_cast<std::size_t>(k)];
-  merge_helpers(static_cast<std::size_t>(t - 1), static_cast<std::size_t>(t));
+  std::size_t total = 0;
+  for (const std::size_t k : skipped) total += k;
+  merge_helpers(helpers, static_cast<std::size_t>(t));
   if (visits)  // counts: the same sums in any order
-    for (const ScanScratch& h : helpers_) ray_hits_.add_visits(h.ray_hits_);
+    for (std::size_t k = 0; k < helpers; ++k) ray_hits_.add_visits(helpers_[k].ray_hits_);
   report.finish();
   return total;
 }
