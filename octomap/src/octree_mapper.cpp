@@ -329,9 +329,7 @@ void OctreeMapper::insert_scan(const Eigen::Vector3d& origin, const Eigen::Matri
                                const Eigen::VectorXd& intensities, double max_range) {
   Impl& m = impl();
   ScanPhaseTimes& phases = last_scan_phases();
-  phases = ScanPhaseTimes{};
-  phases.threads = get_num_threads();
-  detail::PhaseClock total(&phases.total);
+  detail::PhaseClock total = detail::start_scan_phases(phases, get_num_threads());
   detail::check_scan_input(origin, points, intensities, max_range, m.resolution);
   // Rays may be cast on several threads (bit-identical); the octree is then updated on this one.
   const detail::RayStatistics ray_stats{m.updater.params().intensity_threshold};

@@ -42,9 +42,7 @@ void IMapperBackend::batch_update_iwlo(const Eigen::MatrixXd& points, const Eige
 void IMapperBackend::insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points,
                                  const Eigen::VectorXd& intensities, double max_range) {
   ScanPhaseTimes& phases = last_scan_phases();
-  phases = ScanPhaseTimes{};
-  phases.threads = get_num_threads();
-  detail::PhaseClock total(&phases.total);
+  detail::PhaseClock total = detail::start_scan_phases(phases, get_num_threads());
   const double r = get_resolution();
   detail::check_scan_input(origin, points, intensities, max_range, r);
   detail::ScanScratch scratch;

@@ -5,6 +5,8 @@
 // nothing when given no field: the kernels time their phases with it for
 // IMapperBackend::get_last_scan_phases().
 
+#include "iwlomap/scan_phases.h"
+
 #include <chrono>
 
 namespace iwlomap::detail {
@@ -27,5 +29,13 @@ class PhaseClock {
   double* into_;
   Clock::time_point start_;
 };
+
+/// Starts the record of one insert_scan(): \p phases emptied, its thread count set, and the clock
+/// of its total returned (it adds to phases.total when it stops or goes out of scope).
+[[nodiscard]] inline PhaseClock start_scan_phases(ScanPhaseTimes& phases, int threads) noexcept {
+  phases = ScanPhaseTimes{};
+  phases.threads = threads;
+  return PhaseClock(&phases.total);
+}
 
 }  // namespace iwlomap::detail

@@ -262,9 +262,7 @@ struct OutofcoreTileMapper::Impl {
   void insert_scan(const Eigen::Vector3d& origin, const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
                    double max_range, RayModel rays, int threads, const ProgressCallback* progress,
                    ScanPhaseTimes& phases) {
-    phases = ScanPhaseTimes{};
-    phases.threads = threads;
-    detail::PhaseClock total(&phases.total);
+    detail::PhaseClock total = detail::start_scan_phases(phases, threads);
     detail::check_scan_input(origin, points, intensities, max_range, resolution);
     const detail::RayStatistics ray_stats{updater.params().intensity_threshold};
     const detail::RayStatistics* stats = hit_settings.enabled ? &ray_stats : nullptr;

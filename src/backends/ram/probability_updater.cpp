@@ -120,9 +120,7 @@ void ProbabilityUpdater::insert_scan(const Eigen::Vector3d& origin, const Eigen:
                                      const Eigen::VectorXd& intensities, double max_range) {
   Impl& m = impl();
   ScanPhaseTimes& phases = last_scan_phases();
-  phases = ScanPhaseTimes{};
-  phases.threads = get_num_threads();
-  detail::PhaseClock total(&phases.total);
+  detail::PhaseClock total = detail::start_scan_phases(phases, get_num_threads());
   detail::check_scan_input(origin, points, intensities, max_range, m.resolution);
   const int threads = get_num_threads();
   const ProgressCallback* progress = &get_progress_callback();
