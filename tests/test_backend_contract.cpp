@@ -314,9 +314,17 @@ TYPED_TEST(BackendContract, MatchesRamWhenScansAndBatchesMixWithChangedParams) {
   ref->set_intensity_params(20.0, 200.0);
   map->set_occupied_threshold(0.8);
   ref->set_occupied_threshold(0.8);
-  const Batch batch = random_batch(rng, 8000, 6.0);
-  map->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
-  ref->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+  // Slower decays widen the count (12, then 13 bits, steps of 2^-15 and 2^-14), then back to 8
+  // bits: each change converts every voxel from what the last one left, in RAM and in tiles on
+  // disk alike (the second change comes with no update between).
+  for (const double decay : {0.001, 0.0005, 0.3}) {
+    map->set_iwlo_params(0.2, decay, 0.25, -6.0, 6.0);
+    ref->set_iwlo_params(0.2, decay, 0.25, -6.0, 6.0);
+    if (decay == 0.0005) continue;
+    const Batch batch = random_batch(rng, 8000, 6.0);
+    map->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+    ref->batch_update_iwlo(batch.points, batch.intensities, batch.flags);
+  }
   EXPECT_EQ(map->get_params().occupied_threshold, 0.8);
   EXPECT_EQ(map->get_params().L_min, -6.0);
   EXPECT_EQ(map->get_params().log_odds_free, -1.5);

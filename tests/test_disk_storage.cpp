@@ -208,8 +208,8 @@ TEST_F(DamagedTile, ThrowsAtOpenNamingFileWhenMagicWrong) {
 }
 
 TEST_F(DamagedTile, ThrowsNewerVersionAtOpenWhenTileFormatIsNewer) {
-  (void)damage([](std::vector<std::uint8_t>& b) { b[8] = 3; });  // version 3, header checksum left stale
-  expect_open_fails(StorageError::Kind::kNewerVersion, "format version 3");
+  (void)damage([](std::vector<std::uint8_t>& b) { b[8] = 4; });  // version 4, header checksum left stale
+  expect_open_fails(StorageError::Kind::kNewerVersion, "format version 4");
 }
 
 TEST_F(DamagedTile, ThrowsNewerVersionAtOpenWhenMetadataFormatIsNewer) {
@@ -332,20 +332,24 @@ TEST(OutofcoreTileMapper, WritesBlockRecordsInTheDocumentedVoxelOrder) {
   };
   const auto u64 = [&u32](std::size_t at) { return static_cast<std::uint64_t>(u32(at)) | static_cast<std::uint64_t>(u32(at + 4)) << 32; };
   const std::size_t rec = 80;  // header bytes
-  ASSERT_EQ(f.size(), rec + 12 + 4 + 64 + 2 * 6);
-  EXPECT_EQ(u32(rec), 0u);       // block (0, 0, 0)
-  EXPECT_EQ(u32(rec + 12), 2u);  // known voxels
+  const iwlo::VoxelFormat format;  // the defaults'
+  EXPECT_EQ(u32(rec), 8u);         // the format block: 8 count bits, 19 fraction bits
+  EXPECT_EQ(u32(rec + 4), 19u);
+  const std::size_t r = rec + 8;  // the block record
+  ASSERT_EQ(f.size(), r + 12 + 4 + 64 + 2 * 4);
+  EXPECT_EQ(u32(r), 0u);       // block (0, 0, 0)
+  EXPECT_EQ(u32(r + 12), 2u);  // known voxels
   const std::size_t a = 1 + 8 * 2 + 64 * 3, b = 7 + 8 * 0 + 64 * 5;  // 209, 327
   for (std::size_t w = 0; w < 8; ++w) {
     std::uint64_t want = 0;
     if (a / 64 == w) want |= std::uint64_t{1} << (a % 64);
     if (b / 64 == w) want |= std::uint64_t{1} << (b % 64);
-    EXPECT_EQ(u64(rec + 16 + 8 * w), want) << "mask word " << w;
+    EXPECT_EQ(u64(r + 16 + 8 * w), want) << "mask word " << w;
   }
-  const auto u16 = [&f](std::size_t at) { return static_cast<unsigned>(f[at]) | static_cast<unsigned>(f[at + 1]) << 8; };
-  const std::size_t v = rec + 80;  // voxels: f32 log-odds, u16 count
-  EXPECT_EQ(u16(v + 4), 2u);       // (1, 2, 3): seen twice
-  EXPECT_EQ(u16(v + 6 + 4), 1u);   // (7, 0, 5): once
+  const std::size_t v = r + 80;  // voxel words
+  EXPECT_EQ(format.count(u32(v)), 2u);      // (1, 2, 3): seen twice
+  EXPECT_EQ(format.count(u32(v + 4)), 1u);  // (7, 0, 5): once
+  EXPECT_GT(format.log_odds(u32(v)), format.log_odds(u32(v + 4)));
 }
 
 // Tiles evicted again and again leave dead images in the staging file; it is rewritten with the

@@ -50,10 +50,11 @@ TEST_F(MemoryLimit, CountsTheSlabsOfLiveMapsOnly) {
     map.insert_scan(s.origin, s.points, s.intensities);
     const std::size_t held = get_map_memory_in_use() - before;
     EXPECT_GT(held, 0u);
-    // The slabs are nearly all of what the map reports.
+    // The slabs are most of what the map reports (the rest: the block index and the scan's
+    // scratch, 6.5 MB here).
     const double reported = map.get_memory_usage().memory_mb * double(kMiB);
     EXPECT_LE(double(held), reported);
-    EXPECT_GE(double(held), 0.8 * reported);
+    EXPECT_GE(double(held), 0.7 * reported);
   }
   EXPECT_EQ(get_map_memory_in_use(), before);
 }

@@ -125,13 +125,16 @@ TEST(OctoMapFiles, ReadsSameOccupiedSetWhenBtReadBinary) {
   EXPECT_EQ(occupied, want_occupied);
   EXPECT_EQ(occupied.size() + free.size(), ram.get_num_known_voxels());
 
-  // Imported, .bt gives OctoMap's clamping log-odds of a fresh tree.
+  // Imported, .bt gives OctoMap's clamping log-odds of a fresh tree (to the nearest step of the
+  // map's voxel format).
   ProbabilityUpdater copy(r);
   import_octomap(path, copy);
   const octomap::OcTree fresh(r);
+  const iwlo::VoxelFormat format = iwlo::voxel_format(copy.get_params());
   for (const auto& [k, v] : snapshot(copy)) {
     const bool occ_voxel = want_occupied.count(k) > 0;
-    EXPECT_EQ(v.first, static_cast<double>(occ_voxel ? fresh.getClampingThresMaxLog() : fresh.getClampingThresMinLog()));
+    EXPECT_EQ(v.first, static_cast<double>(format.quantize(occ_voxel ? fresh.getClampingThresMaxLog()
+                                                                     : fresh.getClampingThresMinLog())));
   }
   EXPECT_EQ(copy.get_num_known_voxels(), ram.get_num_known_voxels());
   // OctreeMapper::load_from_file uses its own clamping thresholds instead.

@@ -210,11 +210,13 @@ void expect_matches_plain_octree(OctreeMapper& map, const octomap::OcTree& plain
   const auto got = tree_voxels(*tree, r);
   const auto want = tree_voxels(plain, r);
   EXPECT_EQ(got, want);
-  // The exact state holds the same values.
+  // The exact state holds the same values, each to the nearest step of its voxel format (the
+  // octree keeps OctoMap's own floats).
+  const iwlo::VoxelFormat format = iwlo::voxel_format(map.get_params());
   for (const auto& [k, v] : want) {
     const auto s = map.query(key_to_center(k, r));
     ASSERT_TRUE(s.has_value());
-    EXPECT_EQ(s->log_odds, static_cast<double>(v));
+    EXPECT_EQ(s->log_odds, static_cast<double>(format.quantize(v)));
   }
   EXPECT_EQ(map.get_num_known_voxels(), want.size());
 }

@@ -53,7 +53,10 @@ TEST(ProbabilityUpdaterInsertScan, UpdatesEachVoxelOnceWhenRaysShareVoxels) {
   }
   // Occupied wins over free at (3, 0, 0). I = 200: u = 165 / 220 = 0.75,
   // w = 1 / (1 + exp(-0.1 * 0.25)) = 0.5062496744995104, L = 3.5 * w = 1.7718738607482865.
-  const double l200 = static_cast<double>(static_cast<float>(1.7718738607482865));
+  // Stored to the nearest 2^-19 (iwlo::VoxelFormat of the defaults).
+  const iwlo::VoxelFormat format;
+  const double l200 = format.quantize(1.7718738607482865);
+  EXPECT_NEAR(l200, 1.7718738607482865, 0x1p-20);
   EXPECT_EQ(state_at(map, 5, 0, 0), std::make_pair(l200, 1u));
   EXPECT_EQ(state_at(map, 3, 0, 0), std::make_pair(l200, 1u));
   EXPECT_EQ(state_at(map, 0, -4, 0),
@@ -65,7 +68,7 @@ TEST(ProbabilityUpdaterInsertScan, UpdatesEachVoxelOnceWhenRaysShareVoxels) {
   // A second scan is a second observation: n = 2, alpha = 1 / 1.1, P(-3) = 0.047 -> s = 1:
   // L = -3 - 3 / 1.1 = -5.727272727272727 for the free voxels.
   map.insert_scan(origin, rows({{5.5, 0.5, 0.5}}), values({200}));
-  EXPECT_EQ(state_at(map, 1, 0, 0), std::make_pair(static_cast<double>(static_cast<float>(-5.727272727272727)), 2u));
+  EXPECT_EQ(state_at(map, 1, 0, 0), std::make_pair(static_cast<double>(format.quantize(-3.0 - 3.0 / 1.1)), 2u));
   EXPECT_EQ(state_at(map, 0, -1, 0), std::make_pair(-3.0, 1u));  // not on this scan's ray
 }
 

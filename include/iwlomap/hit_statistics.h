@@ -7,7 +7,7 @@
 /// position (a sub-voxel estimate of the surface) and the cell's entropy.
 ///
 /// Accumulation is optional per map and off by default (IMapperBackend::set_hit_accumulation()),
-/// so the default voxel stays within its 8 bytes; the RAM backend keeps the statistics in a side
+/// so the default voxel stays within its 4 bytes; the RAM backend keeps the statistics in a side
 /// structure (32 bytes per voxel, in 8^3 blocks allocated on a first visit) that exists only
 /// while accumulation is on. What counts:
 /// - insert_scan(), per ray, as GMapping counts beams: a ray whose endpoint is a hit (within

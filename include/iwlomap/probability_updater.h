@@ -15,10 +15,10 @@ struct BackendAccess;
 }  // namespace detail
 
 /// The in-memory backend. Voxels live in 8x8x8 blocks found through a hash map keyed by block
-/// coordinate; inside a block they are stored in cells of 2x2x1 voxels (32 bytes, x by y by z),
+/// coordinate; inside a block they are stored in cells of 2x2x1 voxels (16 bytes, x by y by z),
 /// allocated the first time one of their voxels is observed, so a surface costs about what it
-/// covers and free space fills whole blocks. A voxel costs 8 bytes (float log-odds, uint16
-/// observation count, 2 spare), a block a 192-byte header. Keys are int32, so a map at 0.05 m
+/// covers and free space fills whole blocks. A voxel costs 4 bytes (fixed-point log-odds and a
+/// saturating observation count, iwlo::VoxelFormat), a block a 192-byte header. Keys are int32, so a map at 0.05 m
 /// spans +-107,000 km. Memory given back by a map is reused by the process's other maps (see
 /// map_memory.h).
 ///

@@ -13,7 +13,7 @@ namespace iwlomap {
 struct VoxelState {
   double log_odds = 0.0;     ///< current log-odds L (natural logarithm)
   double probability = 0.5;  ///< 1 / (1 + exp(-L))
-  std::uint32_t count = 0;   ///< observations so far (saturates at iwlo::kMaxCount)
+  std::uint32_t count = 0;   ///< observations so far (saturates at the map's iwlo::VoxelFormat::max_count(): 255 with the defaults)
 };
 
 }  // namespace iwlomap

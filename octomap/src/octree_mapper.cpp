@@ -99,23 +99,26 @@ struct OctreeMapper::Impl {
   void observe(detail::VoxelBlock& b, int index, const VoxelKey& key, double intensity, bool occupied_flag,
                double weight) {
     detail::Voxel& v = grid.voxel(b, index);
-    const float before = v.log_odds;
+    const iwlo::VoxelFormat& f = updater.format();
+    const float before = f.log_odds(v.word);
     const bool was_unknown = detail::observe_voxel(b, v, intensity, occupied_flag, weight, updater);
     if (was_unknown) ++known;
-    if (was_unknown || v.log_odds != before) set_leaf(tree, key, v.log_odds);
+    const float after = f.log_odds(v.word);
+    if (was_unknown || after != before) set_leaf(tree, key, after);
   }
 
-  // One observation of OctoMap's own model: the octree computes it, the exact state copies it.
+  // One observation of OctoMap's own model: the octree computes it, the exact state copies it,
+  // rounded to its voxel format (the octree keeps OctoMap's own float).
   void observe_octomap(detail::BlockAccessor& acc, const VoxelKey& key, bool occupied) {
     const octomap::OcTreeNode* node = tree.updateNode(to_octomap(key), occupied, /*lazy_eval=*/true);
     detail::VoxelBlock* b = nullptr;
     detail::Voxel& v = acc.voxel(key, b);
-    if (v.count == 0) {
+    const iwlo::VoxelFormat& f = updater.format();
+    if (!v.known()) {
       ++b->known;
       ++known;
     }
-    v.count = static_cast<std::uint16_t>(iwlo::increment_count(v.count));
-    v.log_odds = node->getLogOdds();
+    v.word = f.encode(node->getLogOdds(), f.next_count(f.count(v.word)));
   }
 
   void apply_batch(const Eigen::MatrixXd& points, const Eigen::VectorXd& intensities,
@@ -378,26 +381,38 @@ void OctreeMapper::set_log_odds(const Eigen::MatrixXd& points, const Eigen::Vect
   for (const detail::AbsoluteLogOdds& a : values) {
     detail::VoxelBlock* b = nullptr;
     detail::Voxel& v = acc.voxel(a.key, b);
-    if (detail::set_voxel_log_odds(*b, v, a.log_odds)) ++m.known;
+    if (detail::set_voxel_log_odds(*b, v, a.log_odds, m.updater.format())) ++m.known;
     set_leaf(m.tree, a.key, a.log_odds);
   }
   m.skipped += skip;
   if (!values.empty()) m.tree_changed();
 }
 
-void OctreeMapper::set_params(const IwloParams& params) { impl().updater = detail::Updater(params); }
+void OctreeMapper::set_params(const IwloParams& params) {
+  Impl& m = impl();
+  detail::Updater next(params);
+  if (!next.format().same_layout(m.updater.format())) {
+    // The stored values are rounded to the new format; the octree's leaves follow them.
+    detail::convert_voxels(m.grid, m.updater.format(), next.format());
+    detail::for_each_known(m.grid, [&](const VoxelKey& key, const detail::Voxel& v) {
+      set_leaf(m.tree, key, next.format().log_odds(v.word));
+    });
+    m.tree_changed();
+  }
+  m.updater = std::move(next);
+}
 IwloParams OctreeMapper::get_params() const { return impl().updater.params(); }
 
 Eigen::MatrixXd OctreeMapper::get_occupied_voxels(double min_probability) const {
-  return detail::occupied_matrix(impl().grid, impl().resolution, min_probability);
+  return detail::occupied_matrix(impl().grid, impl().updater.format(), impl().resolution, min_probability);
 }
 
 std::optional<VoxelState> OctreeMapper::query(const Eigen::Vector3d& point) const {
-  return detail::query_point(impl().grid, impl().resolution, point);
+  return detail::query_point(impl().grid, impl().updater.format(), impl().resolution, point);
 }
 
 void OctreeMapper::for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const {
-  detail::for_each_state(impl().grid, visit);
+  detail::for_each_state(impl().grid, impl().updater.format(), visit);
 }
 
 void OctreeMapper::set_hit_accumulation(bool enabled) { impl().hits.set_enabled(enabled); }
@@ -411,7 +426,7 @@ std::optional<HitStatistics> OctreeMapper::hit_statistics(const Eigen::Vector3d&
 
 Eigen::MatrixXd OctreeMapper::get_occupied_mean_positions(double min_probability) {
   const Impl& m = impl();
-  return detail::occupied_mean_matrix(m.grid, m.hits.get("get_occupied_mean_positions()"), min_probability);
+  return detail::occupied_mean_matrix(m.grid, m.updater.format(), m.hits.get("get_occupied_mean_positions()"), min_probability);
 }
 
 std::unique_ptr<IMapperBackend> OctreeMapper::clone() const {

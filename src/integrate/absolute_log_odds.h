@@ -2,7 +2,7 @@
 #pragma once
 
 // Input checking of IMapperBackend::set_log_odds(), shared by every backend so that all of them
-// reject the same inputs with the same messages, skip the same rows and store the same floats.
+// reject the same inputs with the same messages, skip the same rows and store the same values.
 
 #include "integrate/batch_input.h"
 #include "iwlomap/iwlo.h"
@@ -22,7 +22,7 @@ namespace iwlomap::detail {
 /// One absolute value of a set_log_odds() call, ready to store.
 struct AbsoluteLogOdds {
   VoxelKey key;
-  float log_odds;  // already clamped to [L_min, L_max] and rounded to the stored float
+  float log_odds;  // already clamped to [L_min, L_max] and rounded to a stored value (iwlo::VoxelFormat)
 };
 
 /// Validates a set_log_odds() call and converts it to keyed values in \p out (cleared first).
@@ -39,6 +39,7 @@ inline std::size_t prepare_log_odds(const Eigen::MatrixXd& points, const Eigen::
     throw std::invalid_argument("iwlomap: log_odds has " + std::to_string(log_odds.size()) +
                                 " entries but points has " + std::to_string(points.rows()) + " rows");
   out.reserve(static_cast<std::size_t>(points.rows()));
+  const iwlo::VoxelFormat format = iwlo::voxel_format(params);
   std::size_t skipped = 0;
   for (Eigen::Index i = 0; i < points.rows(); ++i) {
     const Eigen::Vector3d p = points.row(i).transpose();
@@ -52,7 +53,7 @@ inline std::size_t prepare_log_odds(const Eigen::MatrixXd& points, const Eigen::
       throw_out_of_range(i, p, resolution);
     }
     // Clamped in double and rounded once, exactly as iwlo::apply_observation() stores a result.
-    out.push_back({world_to_key(p, resolution), static_cast<float>(std::clamp(value, params.L_min, params.L_max))});
+    out.push_back({world_to_key(p, resolution), format.quantize(std::clamp(value, params.L_min, params.L_max))});
   }
   return skipped;
 }

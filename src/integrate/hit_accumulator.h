@@ -368,9 +368,9 @@ class HitStatisticsOf {
 
 /// get_occupied_mean_positions() of a map held in one grid: get_occupied_voxels()'s rows, in its
 /// order, at the voxels' mean hit positions.
-[[nodiscard]] inline Eigen::MatrixXd occupied_mean_matrix(const BlockGrid& grid, const HitAccumulator& hits,
-                                                          double min_probability) {
-  return rows_to_matrix(occupied_rows([&grid](auto&& fn) { for_each_known(grid, fn); },
+[[nodiscard]] inline Eigen::MatrixXd occupied_mean_matrix(const BlockGrid& grid, const iwlo::VoxelFormat& f,
+                                                          const HitAccumulator& hits, double min_probability) {
+  return rows_to_matrix(occupied_rows([&grid](auto&& fn) { for_each_known(grid, fn); }, f,
                                       resolve_min_probability(min_probability),
                                       [&hits](const VoxelKey& key) { return hits.mean_position(key); }));
 }

@@ -9,6 +9,7 @@ namespace iwlomap::detail {
 // iwlo::probability(), so the shortcut is taken only where iwlo::adaptive_scale() returns exactly 1.
 Updater::Updater(const IwloParams& params) : p_(params) {
   p_.validate();
+  format_ = iwlo::voxel_format(p_);
   constexpr double kMargin = 1e-6;
   const double inf = std::numeric_limits<double>::infinity();
   occupied_fast_from_ = p_.adaptive_enabled ? iwlo::log_odds(p_.adaptive_threshold) + kMargin : -inf;
@@ -25,8 +26,8 @@ Updater::Updater(const IwloParams& params) : p_(params) {
   for (std::size_t i = 0; i < integer_weight_.size(); ++i)
     integer_weight_[i] = iwlo::intensity_weight(static_cast<double>(i), p_);
   for (std::size_t i = 0; i < first_flagged_.size(); ++i)
-    first_flagged_[i] = static_cast<float>(step(0.0, 1, static_cast<double>(i), true, 1.0));
-  first_free_ = static_cast<float>(step(0.0, 1, 0.0, false, 1.0));
+    first_flagged_[i] = format_.encode(step(0.0, 1, static_cast<double>(i), true, 1.0), 1);
+  first_free_ = format_.encode(step(0.0, 1, 0.0, false, 1.0), 1);
 }
 
 }  // namespace iwlomap::detail

@@ -27,10 +27,25 @@ class Updater {
   /// Validates \p params (throws std::invalid_argument).
   explicit Updater(const IwloParams& params = {});
   [[nodiscard]] const IwloParams& params() const noexcept { return p_; }
+  /// How the map's voxels store their state: iwlo::voxel_format(params()).
+  [[nodiscard]] const iwlo::VoxelFormat& format() const noexcept { return format_; }
 
   /// iwlo::step(log_odds, count, intensity, occupied_flag, weight, params()).
   [[nodiscard]] double step(double log_odds_value, std::uint32_t count, double intensity, bool occupied_flag,
                             double weight) const {
+    return std::clamp(step_unclamped(log_odds_value, count, intensity, occupied_flag, weight), p_.L_min, p_.L_max);
+  }
+
+  /// step() before its clamp to [L_min, L_max]: L + weighted_delta().
+  [[nodiscard]] double step_unclamped(double log_odds_value, std::uint32_t count, double intensity,
+                                      bool occupied_flag, double weight) const {
+    return log_odds_value + weighted_delta(log_odds_value, count, intensity, occupied_flag, weight);
+  }
+
+  /// iwlo::delta(log_odds, count, intensity, occupied_flag, weight, params()): the increment,
+  /// already multiplied by the weight.
+  [[nodiscard]] double weighted_delta(double log_odds_value, std::uint32_t count, double intensity,
+                                      bool occupied_flag, double weight) const {
     const IwloParams& p = p_;
     const bool occupied = occupied_flag && intensity > p.intensity_threshold;  // is_occupied_observation()
     const bool unit_scale = occupied ? log_odds_value >= occupied_fast_from_ : log_odds_value <= free_fast_to_;
@@ -52,13 +67,13 @@ class Updater {
     } else {
       d = p.log_odds_free * alpha * s;
     }
-    return std::clamp(log_odds_value + d * weight, p.L_min, p.L_max);
+    return d * weight;
   }
 
-  /// The stored log-odds after an unknown voxel's first observation with weight 1, into \p out;
+  /// The stored word after an unknown voxel's first observation with weight 1, into \p out;
   /// false (out untouched) when the intensity of a flagged observation is not an integer 0..255.
-  /// The table holds step()'s own results, so this is step() for those inputs.
-  [[nodiscard]] bool first_observation(double intensity, bool occupied_flag, float& out) const {
+  /// The table holds step()'s own results, encoded, so this is step() for those inputs.
+  [[nodiscard]] bool first_observation(double intensity, bool occupied_flag, std::uint32_t& out) const {
     if (!occupied_flag) {
       out = first_free_;
       return true;
@@ -72,15 +87,16 @@ class Updater {
 
  private:
   IwloParams p_;
+  iwlo::VoxelFormat format_;
   std::vector<double> alpha_;                 // alpha_[n - 1] for counts below the floor
   std::array<double, 256> integer_weight_{};  // intensity_weight(I) for I = 0..255
   double occupied_fast_from_;  // L at or above this: P >= P_th for certain, occupied scale is 1
   double free_fast_to_;        // L at or below this: P <= 1 - P_th for certain, free scale is 1
   std::array<double, 2> scale_at_zero_{};  // adaptive_scale(0.5, occupied) for occupied = false, true
-  // The stored log-odds (float, as voxels keep them) after an unknown voxel's first observation
-  // with weight 1: with the occupied flag and integer intensity I = 0..255, and without the flag.
-  std::array<float, 256> first_flagged_{};
-  float first_free_ = 0.0f;
+  // The stored word after an unknown voxel's first observation with weight 1: with the occupied
+  // flag and integer intensity I = 0..255, and without the flag.
+  std::array<std::uint32_t, 256> first_flagged_{};
+  std::uint32_t first_free_ = 0;
 };
 
 }  // namespace iwlomap::detail

@@ -12,40 +12,53 @@
 
 namespace iwlomap::detail {
 
-/// iwlo::apply_observation() with the precomputed Updater (the same stored state). An unknown
-/// voxel's first observation with weight 1 and an integer intensity (or a free one) is a table
-/// look-up: most observations of a batch into new space are such.
-inline void update_voxel_state(float& log_odds_value, std::uint16_t& count, double intensity, bool occupied_flag,
-                               double weight, const Updater& u) {
-  if (count == 0 && log_odds_value == 0.0f && weight == 1.0 &&
-      u.first_observation(intensity, occupied_flag, log_odds_value)) {
-    count = 1;
-    return;
-  }
-  const std::uint32_t n = iwlo::increment_count(count);
-  log_odds_value =
-      static_cast<float>(u.step(static_cast<double>(log_odds_value), n, intensity, occupied_flag, weight));
-  count = static_cast<std::uint16_t>(n);
+/// iwlo::apply_observation() with the precomputed Updater, on a stored word (the same stored
+/// state). An unknown voxel's first observation with weight 1 and an integer intensity (or a free
+/// one) is a table look-up: most observations of a batch into new space are such.
+inline void update_voxel_state(std::uint32_t& word, double intensity, bool occupied_flag, double weight,
+                               const Updater& u) {
+  if (word == 0 && weight == 1.0 && u.first_observation(intensity, occupied_flag, word)) return;
+  // encode(step(L)) computed on the fixed-point value q = L * 2^f, which is the same: 2^f is a
+  // power of two, so q + delta * 2^f rounds exactly as (L + delta) * 2^f, and encode's bounds
+  // [q_min, q_max] lie within [L_min, L_max] * 2^f, so step()'s clamp before them changes
+  // nothing. What a second observation of the voxel waits for is then an add, the bounds and
+  // the conversion, not two more multiplications and a clamp.
+  const iwlo::VoxelFormat& f = u.format();
+  const std::uint32_t n = f.next_count(f.count(word));
+  const auto q = static_cast<double>(f.fixed(word));
+  const double d = u.weighted_delta(q * f.step(), n, intensity, occupied_flag, weight);
+  word = f.encode_fixed(q + d * f.scale(), n);
 }
 
 /// One IWLO observation of voxel \p v of block \p b.
 inline bool observe_voxel(VoxelBlock& b, Voxel& v, double intensity, bool occupied_flag, double weight,
                           const Updater& updater) {
-  const bool was_unknown = v.count == 0;
+  const bool was_unknown = !v.known();
   if (was_unknown) ++b.known;
-  update_voxel_state(v.log_odds, v.count, intensity, occupied_flag, weight, updater);
+  update_voxel_state(v.word, intensity, occupied_flag, weight, updater);
   return was_unknown;
 }
 
-/// Absolute log-odds (IMapperBackend::set_log_odds()): an unknown voxel becomes known with count 1.
-inline bool set_voxel_log_odds(VoxelBlock& b, Voxel& v, float log_odds) {
-  const bool was_unknown = v.count == 0;
-  if (was_unknown) {
-    ++b.known;
-    v.count = 1;
-  }
-  v.log_odds = log_odds;
+/// Absolute log-odds (IMapperBackend::set_log_odds()), stored in \p format: an unknown voxel
+/// becomes known with count 1; a known one keeps its count.
+inline bool set_voxel_log_odds(VoxelBlock& b, Voxel& v, double log_odds, const iwlo::VoxelFormat& format) {
+  const bool was_unknown = !v.known();
+  if (was_unknown) ++b.known;
+  v.word = format.encode(log_odds, was_unknown ? 1 : format.count(v.word));
   return was_unknown;
+}
+
+/// Rewrites every known voxel of \p grid from format \p from to format \p to when their layouts
+/// differ (a change of parameters): iwlo::VoxelFormat::convert().
+inline void convert_voxels(BlockGrid& grid, const iwlo::VoxelFormat& from, const iwlo::VoxelFormat& to) {
+  if (to.same_layout(from)) return;
+  for (VoxelBlock* b : grid.blocks()) {
+    b->cell_mask.for_each([&](int c) {
+      Cell& cell = b->cells[b->position[static_cast<std::size_t>(c)]];
+      for (Voxel& v : cell.voxels)
+        if (v.known()) v.word = to.convert(v.word, from);
+    });
+  }
 }
 
 }  // namespace iwlomap::detail

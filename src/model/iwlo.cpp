@@ -41,9 +41,87 @@ void IwloParams::validate() const {
     fail("adaptive_max_ratio", adaptive_max_ratio, "must be in [0, 1]");
   if (!(occupied_threshold > 0.0 && occupied_threshold < 1.0))
     fail("occupied_threshold", occupied_threshold, "must be in (0, 1)");
+  (void)iwlo::voxel_format(*this);  // throws when no stored log-odds lies in [L_min, L_max]
 }
 
 namespace iwlo {
+
+static_assert((-8 >> 1) == -4, "VoxelFormat::log_odds() needs an arithmetic shift of negative integers");
+
+namespace {
+
+constexpr int kMinFractionBits = -104;  // 2^23 * 2^104 = 2^127 still fits a float
+constexpr int kMaxFractionBits = 100;
+
+// The count bits a learning rate needs: enough to hold the first count whose rate is the floor,
+// so that every rate above the floor comes from the exact count and a saturated count has the
+// floor's rate.
+int count_bits_for(const IwloParams& p) {
+  if (!(p.decay_rate > 0.0) || p.min_alpha >= 1.0) return 8;  // the rate never decays: the count is not used
+  // alpha(n) = 1 / (1 + decay_rate (n - 1)) <= min_alpha from n - 1 >= (1/min_alpha - 1) / decay_rate.
+  const double x = (1.0 / p.min_alpha - 1.0) / p.decay_rate;
+  if (x >= 65535.0) return 16;
+  // The estimate, then learning_rate() itself decides (a step or two), so rounding cannot move
+  // the floor by one.
+  auto n = static_cast<std::uint32_t>(std::max(1.0, std::floor(x) - 1.0));
+  while (learning_rate(n, p) > p.min_alpha) ++n;
+  int bits = 8;
+  while (bits < 16 && n > (1u << bits) - 1) ++bits;
+  return bits;
+}
+
+}  // namespace
+
+VoxelFormat::VoxelFormat() : VoxelFormat(voxel_format(IwloParams{})) {}
+
+VoxelFormat::VoxelFormat(int count_bits, int fraction_bits, std::int32_t q_min, std::int32_t q_max)
+    : fraction_bits_(fraction_bits), q_min_(q_min), q_max_(q_max) {
+  if (count_bits < 8 || count_bits > 16)
+    throw std::invalid_argument("iwlomap: voxel format: count bits must be in 8..16, got " + std::to_string(count_bits));
+  if (fraction_bits < kMinFractionBits || fraction_bits > kMaxFractionBits)
+    throw std::invalid_argument("iwlomap: voxel format: fraction bits must be in " + std::to_string(kMinFractionBits) +
+                                ".." + std::to_string(kMaxFractionBits) + ", got " + std::to_string(fraction_bits));
+  const std::int64_t limit = (std::int64_t{1} << (31 - count_bits)) - 1;
+  q_limit_ = static_cast<std::int32_t>(limit);
+  if (!(q_min <= q_max && q_min >= -limit && q_max <= limit))
+    throw std::invalid_argument("iwlomap: voxel format: stored values " + std::to_string(q_min) + ".." +
+                                std::to_string(q_max) + " do not fit " + std::to_string(32 - count_bits) + " bits");
+  count_bits_ = static_cast<std::uint64_t>(count_bits);
+  count_mask_ = (std::uint64_t{1} << count_bits) - 1;
+  step_ = std::ldexp(1.0, -fraction_bits);
+  scale_ = std::ldexp(1.0, fraction_bits);
+  update_lo_ = q_min;
+  update_hi_ = q_max;
+  limit_ = static_cast<double>(q_limit_);
+}
+
+VoxelFormat voxel_format(const IwloParams& p) {
+  const int count_bits = count_bits_for(p);
+  const double largest = static_cast<double>((std::int64_t{1} << (31 - count_bits)) - 1);
+  // At least +-15, so that the layout of the defaults serves every clamp range within it.
+  constexpr double kLeastReach = 15.0;
+  const double reach = std::max({std::abs(p.L_min), std::abs(p.L_max), kLeastReach});
+  // The largest f with largest * 2^-f >= reach.
+  int f = std::clamp(std::ilogb(largest) - std::ilogb(reach), kMinFractionBits, kMaxFractionBits);
+  while (f > kMinFractionBits && std::ldexp(largest, -f) < reach) --f;
+  while (f < kMaxFractionBits && std::ldexp(largest, -(f + 1)) >= reach) ++f;
+  // L_min and L_max rounded inwards to a step, and within the stored bits.
+  const double q_min = std::max(-largest, std::ceil(std::ldexp(p.L_min, f)));
+  const double q_max = std::min(largest, std::floor(std::ldexp(p.L_max, f)));
+  if (!(q_min <= q_max))
+    throw std::invalid_argument("iwlomap: invalid IWLO parameter L_min = " + std::to_string(p.L_min) +
+                                " (no stored log-odds lies between it and L_max = " + std::to_string(p.L_max) + ")");
+  return VoxelFormat(count_bits, f, static_cast<std::int32_t>(q_min), static_cast<std::int32_t>(q_max));
+}
+
+void apply_observation(float& log_odds_value, std::uint16_t& count, double intensity, bool occupied_flag,
+                       double weight, const IwloParams& p) {
+  const VoxelFormat format = voxel_format(p);
+  const std::uint32_t n = format.next_count(count);
+  log_odds_value = format.log_odds(
+      format.encode(step(static_cast<double>(log_odds_value), n, intensity, occupied_flag, weight, p), n));
+  count = static_cast<std::uint16_t>(n);
+}
 
 double probability(double log_odds) { return 1.0 / (1.0 + std::exp(-log_odds)); }
 

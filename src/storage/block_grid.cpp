@@ -204,7 +204,7 @@ void BlockGrid::add_dense(const DenseBlock& dense) {
   VoxelBlock& b = get_or_create(dense.key);
   CellMask mask;
   for (int i = 0; i < kBlockVoxels; ++i)
-    if (dense.voxels[static_cast<std::size_t>(i)].count != 0) mask |= CellMask::of(i >> kCellShift);
+    if (dense.voxels[static_cast<std::size_t>(i)].known()) mask |= CellMask::of(i >> kCellShift);
   ensure_cells(b, mask);
   b.for_each_slot([&](int i, const Voxel&) { b.existing(i) = dense.voxels[static_cast<std::size_t>(i)]; });
   b.known = dense.known;
@@ -221,7 +221,7 @@ std::size_t BlockGrid::prune() {
     // Keep the cells holding a known voxel.
     CellMask mask;
     b->for_each_slot([&](int i, const Voxel& v) {
-      if (v.count != 0) mask |= CellMask::of(i >> kCellShift);
+      if (v.known()) mask |= CellMask::of(i >> kCellShift);
     });
     auto* copy = new (headers->allocate(sizeof(VoxelBlock), alignof(VoxelBlock))) VoxelBlock(b->key);
     copy->known = b->known;

@@ -3,7 +3,7 @@
 
 // The sparse block grid behind every backend's voxels (the RAM map, the Disk backend's resident
 // tiles, the OctoMap backend's exact state). Voxels live in 8^3 blocks found through a FlatKeyMap
-// keyed by block coordinate; inside a block they are stored in cells of 2 x 2 x 1 voxels (32
+// keyed by block coordinate; inside a block they are stored in cells of 2 x 2 x 1 voxels (16
 // bytes), allocated on first touch. A block keeps a 128-bit mask of its allocated cells, one
 // array holding them in allocation order and a table of their positions in it: finding a voxel is
 // one byte of the block header away, and a new cell goes to the end of the array without moving
@@ -13,11 +13,12 @@
 // each 8^3 block it crosses, so dense blocks would cost 4 KiB a block for a few voxels. Why
 // 2 x 2 x 1: the ground and most surfaces lie closer to horizontal than to vertical, and this shape
 // fills fewest cells on the synthetic and the Ouster scans of any 4-voxel shape (figures in
-// docs/benchmark-log.md, 2026-11-21). A block filled by free space costs 8 bytes a voxel plus its 192-byte header.
+// docs/benchmark-log.md, 2026-11-21). A block filled by free space costs 4 bytes a voxel plus its 192-byte header.
 //
-// A voxel is 8 bytes: float log-odds, uint16 count and 2 spare bytes, log-odds and count in one
-// cache line so that an update costs one cache miss. A count of 0 means "unknown"; every observed
-// voxel has count >= 1.
+// A voxel is one 4-byte word in the map's iwlomap::iwlo::VoxelFormat (fixed-point log-odds above a
+// saturating count), so an update reads and writes one word. The grid stores words and does not
+// know the format: the backend's Updater encodes and decodes them. A word of 0 means "unknown";
+// every observed voxel has count >= 1, so its word is not 0.
 
 #include "storage/flat_key_map.h"
 #include "iwlomap/voxel_key.h"
@@ -126,16 +127,15 @@ struct CellMask {
 }
 
 struct Voxel {
-  float log_odds = 0.0f;
-  std::uint16_t count = 0;
-  std::uint16_t spare = 0;
+  std::uint32_t word = 0;  // iwlo::VoxelFormat of the map; 0: unknown
+  [[nodiscard]] bool known() const noexcept { return word != 0; }
 };
-static_assert(sizeof(Voxel) == 8, "a voxel must stay within 8 bytes");
+static_assert(sizeof(Voxel) == 4, "a voxel is 4 bytes");
 
-struct alignas(32) Cell {
+struct alignas(16) Cell {
   std::array<Voxel, kCellVoxels> voxels{};
 };
-static_assert(sizeof(Cell) == 32, "a cell is half a cache line");
+static_assert(sizeof(Cell) == 16, "a cell is a quarter of a cache line");
 
 /// An 8^3 block: a header of 192 bytes whose first cache line holds everything a batch looks at
 /// before it reaches a voxel (key, mask, cell array); its cells live in one array owned by the
@@ -143,7 +143,7 @@ static_assert(sizeof(Cell) == 32, "a cell is half a cache line");
 struct alignas(64) VoxelBlock {
   explicit VoxelBlock(const VoxelKey& k) : key(k) {}
   VoxelKey key;
-  std::uint32_t known = 0;  // voxels with count > 0
+  std::uint32_t known = 0;  // voxels with a count (a word other than 0)
   CellMask cell_mask;       // the allocated cells
   Cell* cells = nullptr;    // the allocated cells, cell_mask.count() of them
   CellMask pending;         // cells a batch in progress needs (RAM, Disk); empty between calls

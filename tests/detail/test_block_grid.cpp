@@ -121,14 +121,14 @@ TEST(CellPool, ReusesFreedArraysOfTheSameClassOnly) {
 TEST(BlockGrid, KeepsVoxelsWhenCellsAreAddedInAnyOrder) {
   std::mt19937 rng(9u);
   detail::BlockGrid grid;
-  std::map<VoxelKey, std::uint16_t> ref;
+  std::map<VoxelKey, std::uint32_t> ref;  // the grid keeps words; here each word counts visits
   for (int i = 0; i < 20000; ++i) {
     const VoxelKey k{static_cast<std::int32_t>(rng() % 48) - 24, static_cast<std::int32_t>(rng() % 48) - 24,
                      static_cast<std::int32_t>(rng() % 16) - 8};
     detail::VoxelBlock& b = grid.get_or_create(detail::block_of(k));
     detail::Voxel& v = grid.voxel(b, detail::index_in_block(k));
-    if (v.count == 0) ++b.known;
-    ++v.count;
+    if (!v.known()) ++b.known;
+    ++v.word;
     ++ref[k];
   }
   std::size_t known = 0;
@@ -137,14 +137,14 @@ TEST(BlockGrid, KeepsVoxelsWhenCellsAreAddedInAnyOrder) {
     ASSERT_NE(b, nullptr);
     const detail::Voxel* v = b->find(detail::index_in_block(k));
     ASSERT_NE(v, nullptr);
-    EXPECT_EQ(v->count, n);
+    EXPECT_EQ(v->word, n);
     ++known;
   }
   EXPECT_EQ(grid.known_voxels(), known);
   // Every allocated cell holds a known voxel, so pruning frees nothing and moves everything.
   EXPECT_EQ(grid.prune(), 0u);
   EXPECT_EQ(grid.known_voxels(), known);
-  for (const auto& [k, n] : ref) ASSERT_EQ(grid.find(detail::block_of(k))->find(detail::index_in_block(k))->count, n);
+  for (const auto& [k, n] : ref) ASSERT_EQ(grid.find(detail::block_of(k))->find(detail::index_in_block(k))->word, n);
 }
 
 // The slab cache keeps the memory of destroyed maps only while another map lives, unless the

@@ -93,14 +93,15 @@ TEST(Updater, BitIdenticalToStepWhenSweepingInputs) {
 TEST(UpdateVoxelState, SameStoredStateAsApplyObservation) {
   const IwloParams p;
   const detail::Updater u(p);
-  float La = 0.0f, Lb = 0.0f;
-  std::uint16_t na = 0, nb = 0;
+  float La = 0.0f;
+  std::uint16_t na = 0;
+  std::uint32_t word = 0;
   const double seq[][3] = {{200, 1, 1}, {20, 1, 1}, {0, 0, 0.5}, {255, 1, 2}, {145.5, 1, 1}, {35, 1, 1}};
   for (const auto& o : seq) {
     iwlo::apply_observation(La, na, o[0], o[1] != 0.0, o[2], p);
-    detail::update_voxel_state(Lb, nb, o[0], o[1] != 0.0, o[2], u);
-    EXPECT_EQ(La, Lb);
-    EXPECT_EQ(na, nb);
+    detail::update_voxel_state(word, o[0], o[1] != 0.0, o[2], u);
+    EXPECT_EQ(La, u.format().log_odds(word));
+    EXPECT_EQ(na, u.format().count(word));
   }
   EXPECT_EQ(na, 6);
 }

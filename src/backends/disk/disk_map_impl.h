@@ -52,7 +52,7 @@ struct OutofcoreTileMapper::Impl {
         tile_size(static_cast<double>(tile_voxels) * res),
         dir(directory, res, tile, tile_voxels, read_only),
         store(dir, res, tile_voxels, detail::state_of(dir.meta())),
-        cache(store, cache_tiles, res, tile_voxels, total_known, hit_settings),
+        cache(store, cache_tiles, res, tile_voxels, total_known, hit_settings, updater.format()),
         routing(tile_voxels),
         updater(store.committed_state().params) {
     total_known = store.known();
@@ -64,7 +64,34 @@ struct OutofcoreTileMapper::Impl {
   // ---- what the manifest records besides the tiles ----
 
   // The parameters belong to the map: validated, used at once, recorded by the next commit.
-  void set_params(const IwloParams& p) { updater = detail::Updater(p); }
+  //
+  // A new voxel layout converts every tile now, each once from the values it holds, as the RAM
+  // backend converts its grid: the resident tiles in memory first (the cache writes a tile in the
+  // map's current format, so none may be evicted before), then the others as they are read (a
+  // file names its own format). All are marked dirty, so a second change converts what the first
+  // produced and not the older files. This reads and later writes the whole map, but only when
+  // decay_rate, min_alpha or a clamp beyond +-15 change the layout of a map that holds voxels.
+  void set_params(const IwloParams& p) {
+    detail::Updater next(p);
+    const bool convert = !next.format().same_layout(updater.format());
+    if (convert)
+      for (const auto& t : cache.resident()) {
+        detail::convert_voxels(t->grid, updater.format(), next.format());
+        t->dirty = true;
+      }
+    updater = std::move(next);
+    if (!convert) return;
+    const std::vector<VoxelKey> keys = all_tiles();
+    std::vector<VoxelKey> group;
+    std::vector<detail::Tile*> tiles;
+    for (std::size_t first = 0; first < keys.size(); first += cache.capacity()) {
+      group.assign(keys.begin() + static_cast<std::ptrdiff_t>(first),
+                   keys.begin() + static_cast<std::ptrdiff_t>(std::min(keys.size(), first + cache.capacity())));
+      detail::TileCache::PinScope pins(cache);
+      cache.make_resident(group, tiles);
+      for (detail::Tile* t : tiles) t->dirty = true;
+    }
+  }
 
   void set_hit_accumulation(bool enabled) {
     if (enabled == hit_settings.enabled) return;
@@ -347,7 +374,7 @@ struct OutofcoreTileMapper::Impl {
           const detail::AbsoluteLogOdds& a = values[routing.order()[j]];
           detail::VoxelBlock* b = nullptr;
           detail::Voxel& v = acc.voxel(a.key, b);
-          if (detail::set_voxel_log_odds(*b, v, a.log_odds)) ++total_known;
+          if (detail::set_voxel_log_odds(*b, v, a.log_odds, updater.format())) ++total_known;
         }
       }
     });
@@ -375,10 +402,10 @@ struct OutofcoreTileMapper::Impl {
                                          std::to_string(expected) +
                                          " when last written or read (changed by another program?)");
       if (!scratch_block) scratch_block = std::make_unique<detail::DenseBlock>();
-      detail::decode_tile(bytes, h, tile_voxels, where, *scratch_block, [&fn](const detail::DenseBlock& b) {
+      detail::decode_tile(bytes, h, tile_voxels, where, updater.format(), *scratch_block, [&fn](const detail::DenseBlock& b) {
         for (int i = 0; i < detail::kBlockVoxels; ++i) {
           const detail::Voxel& v = b.voxels[static_cast<std::size_t>(i)];
-          if (v.count != 0) fn(detail::voxel_of(b.key, i), v);
+          if (v.known()) fn(detail::voxel_of(b.key, i), v);
         }
       });
     }

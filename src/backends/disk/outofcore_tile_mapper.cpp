@@ -123,7 +123,7 @@ Eigen::MatrixXd OutofcoreTileMapper::get_occupied_mean_positions(double min_prob
       t = loaded.get();
     }
     const std::vector<double> tile_rows = detail::occupied_rows(
-        [t](auto&& fn) { detail::for_each_known(t->grid, fn); }, threshold,
+        [t](auto&& fn) { detail::for_each_known(t->grid, fn); }, m.updater.format(), threshold,
         [t](const VoxelKey& key) { return t->hits->mean_position(key); });
     rows.insert(rows.end(), tile_rows.begin(), tile_rows.end());
   }
@@ -158,7 +158,7 @@ Eigen::MatrixXd OutofcoreTileMapper::get_occupied_voxels(double min_probability)
   Impl& m = *impl_;
   std::lock_guard<std::mutex> lock(m.mutex);
   return detail::rows_to_matrix(
-      detail::occupied_rows([&m](auto&& fn) { m.for_each_known(fn); }, threshold,
+      detail::occupied_rows([&m](auto&& fn) { m.for_each_known(fn); }, m.updater.format(), threshold,
                             [&m](const VoxelKey& k) { return key_to_center(k, m.resolution); }));
 }
 
@@ -171,14 +171,15 @@ std::optional<VoxelState> OutofcoreTileMapper::query(const Eigen::Vector3d& poin
   std::lock_guard<std::mutex> lock(m.mutex);
   const detail::Tile* tile = m.resident_tile(m.routing.tile_of_voxel(key));
   if (tile == nullptr) return std::nullopt;
-  return detail::query_voxel(tile->grid, key);
+  return detail::query_voxel(tile->grid, m.updater.format(), key);
 }
 
 void OutofcoreTileMapper::for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const {
   (void)impl();
   Impl& m = *impl_;
   std::lock_guard<std::mutex> lock(m.mutex);
-  m.for_each_known([&](const VoxelKey& key, const detail::Voxel& v) { visit(key, detail::state_of(v)); });
+  const iwlo::VoxelFormat& f = m.updater.format();
+  m.for_each_known([&](const VoxelKey& key, const detail::Voxel& v) { visit(key, detail::state_of(v, f)); });
 }
 
 void detail::BackendAccess::apply_to_disk(OutofcoreTileMapper& map, const ScanScratch& scratch) {
@@ -195,7 +196,8 @@ void detail::BackendAccess::for_each_known_block_disk(const OutofcoreTileMapper&
   OutofcoreTileMapper::Impl& m = *map.impl_;
   std::lock_guard<std::mutex> lock(m.mutex);
   auto group = std::make_unique<detail::KnownBlockGrouper>(visit);
-  m.for_each_known([&group](const VoxelKey& key, const detail::Voxel& v) { group->add(key, v.log_odds); });
+  const iwlo::VoxelFormat& f = m.updater.format();
+  m.for_each_known([&group, &f](const VoxelKey& key, const detail::Voxel& v) { group->add(key, f.log_odds(v.word)); });
   group->finish();
 }
 

@@ -27,7 +27,7 @@ std::unique_ptr<Tile> TileCache::load(const VoxelKey& key) {
   // Statistics of another epoch were gathered before accumulation was last turned off: empty now.
   const bool take_hits = tile->hits != nullptr && h.hit_epoch == hits_.epoch;
   decode_tile(
-      io_buffer_, h, tile_voxels_, where, *scratch, [&](const DenseBlock& b) { tile->grid.add_dense(b); },
+      io_buffer_, h, tile_voxels_, where, format_, *scratch, [&](const DenseBlock& b) { tile->grid.add_dense(b); },
       [&](const VoxelKey& block_key, const HitAccumulator::Block& cells) {
         if (take_hits) tile->hits->merge(block_key, cells);
       });
@@ -35,7 +35,7 @@ std::unique_ptr<Tile> TileCache::load(const VoxelKey& key) {
 }
 
 std::uint64_t TileCache::encode(const Tile& t, std::vector<std::uint8_t>& out) const {
-  return encode_tile(t.grid, t.hits.get(), hits_.epoch, resolution_, tile_voxels_, t.key, out);
+  return encode_tile(t.grid, format_, t.hits.get(), hits_.epoch, resolution_, tile_voxels_, t.key, out);
 }
 
 // Evicts least recently used unpinned tiles until one more fits. A dirty tile that cannot be

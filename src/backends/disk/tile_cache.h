@@ -38,11 +38,12 @@ class TileCache {
  public:
   /// \p known_total is the map's count of known voxels: reading a tile corrects it when the file
   /// changed since its header was read.
-  /// \p hits is the map's setting, read whenever a tile is made or written.
+  /// \p hits is the map's setting, read whenever a tile is made or written; \p format is the
+  /// map's voxel format (the Updater's, which outlives the cache), the one of every resident tile.
   TileCache(TileStore& store, std::size_t capacity, double resolution, std::uint32_t tile_voxels,
-            std::size_t& known_total, const HitSettings& hits)
+            std::size_t& known_total, const HitSettings& hits, const iwlo::VoxelFormat& format)
       : store_(store), capacity_(capacity), resolution_(resolution), tile_voxels_(tile_voxels),
-        known_total_(known_total), hits_(hits) {}
+        known_total_(known_total), hits_(hits), format_(format) {}
 
   /// The resident tile \p key, or null.
   [[nodiscard]] Tile* find(const VoxelKey& key) const;
@@ -94,6 +95,7 @@ class TileCache {
   std::uint32_t tile_voxels_;
   std::size_t& known_total_;
   const HitSettings& hits_;
+  const iwlo::VoxelFormat& format_;
   std::vector<std::unique_ptr<Tile>> resident_;
   std::unordered_map<VoxelKey, Tile*, VoxelKeyHash> index_;  // of resident_
   std::uint64_t tick_ = 0;

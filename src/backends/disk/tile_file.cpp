@@ -54,11 +54,24 @@ std::string hex32(std::uint32_t v) {
   return buf;
 }
 
-std::uint64_t encode_tile(const BlockGrid& grid, const HitAccumulator* hits, std::uint32_t hit_epoch, double resolution,
-                          std::uint32_t tile_voxels, const VoxelKey& tile, std::vector<std::uint8_t>& out) {
+iwlo::VoxelFormat load_voxel_format(const std::uint8_t* p, const std::string& path) {
+  const auto count_bits = static_cast<std::int32_t>(load_u32(p));
+  const auto fraction_bits = static_cast<std::int32_t>(load_u32(p + 4));
+  try {
+    if (count_bits < 8 || count_bits > 16) throw std::invalid_argument("count bits " + std::to_string(count_bits));
+    const std::int32_t limit = (std::int32_t{1} << (31 - count_bits)) - 1;
+    return iwlo::VoxelFormat(count_bits, fraction_bits, -limit, limit);
+  } catch (const std::invalid_argument& e) {
+    throw_corrupt(path, std::string("its voxel format is not valid: ") + e.what());
+  }
+}
+
+std::uint64_t encode_tile(const BlockGrid& grid, const iwlo::VoxelFormat& format, const HitAccumulator* hits,
+                          std::uint32_t hit_epoch, double resolution, std::uint32_t tile_voxels, const VoxelKey& tile,
+                          std::vector<std::uint8_t>& out) {
   std::vector<const VoxelBlock*> blocks;
   blocks.reserve(grid.num_blocks());
-  std::size_t payload = 0;
+  std::size_t payload = kFormatBlockBytes;
   for (const auto& b : grid.blocks()) {
     if (b->known == 0) continue;
     blocks.push_back(b);
@@ -81,6 +94,9 @@ std::uint64_t encode_tile(const BlockGrid& grid, const HitAccumulator* hits, std
 
   out.assign(kTileHeaderBytes + payload, 0);
   std::uint8_t* p = out.data() + kTileHeaderBytes;
+  store_u32(p, static_cast<std::uint32_t>(format.count_bits()));
+  store_u32(p + 4, static_cast<std::uint32_t>(format.fraction_bits()));
+  p += kFormatBlockBytes;
   std::uint64_t known = 0;
   DenseBlock dense;  // one block with every voxel in place, read in file order
   for (const VoxelBlock* b : blocks) {
@@ -94,12 +110,9 @@ std::uint64_t encode_tile(const BlockGrid& grid, const HitAccumulator* hits, std
       std::uint64_t bits = 0;
       for (int i = 0; i < 64; ++i) {
         const Voxel& voxel = dense.voxels[file_to_block_index(w * 64 + i)];
-        if (voxel.count == 0) continue;
+        if (!voxel.known()) continue;
         bits |= std::uint64_t{1} << i;
-        std::uint32_t raw;
-        std::memcpy(&raw, &voxel.log_odds, sizeof raw);
-        store_u32(v, raw);
-        store_u16(v + 4, voxel.count);
+        store_u32(v, voxel.word);
         v += kVoxelBytes;
         ++n;
       }
@@ -142,7 +155,7 @@ std::uint64_t encode_tile(const BlockGrid& grid, const HitAccumulator* hits, std
 
   std::uint8_t* h = out.data();
   std::memcpy(h, kMagic, sizeof kMagic);
-  store_u32(h + 8, hits != nullptr ? 2u : 1u);
+  store_u32(h + 8, kTileFormatVersion);
   store_u32(h + 12, kByteOrderMark);
   store_u32(h + 16, static_cast<std::uint32_t>(kTileHeaderBytes));
   store_u32(h + 20, tile_voxels);

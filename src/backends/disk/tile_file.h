@@ -8,7 +8,7 @@
 //
 //   header  offset  field
 //           0       magic "IWLOTILE" (8 bytes)
-//           8       u32 format version: 1, or 2 when the file holds hit statistics
+//           8       u32 format version: 3 (1 and 2 are read, see below)
 //           12      u32 byte-order mark 0x01020304 (bytes 04 03 02 01 on disk)
 //           16      u32 header size (80)
 //           20      u32 tile edge in voxels
@@ -18,14 +18,15 @@
 //           48      u64 known voxels
 //           56      u64 payload bytes
 //           64      u32 CRC-32 of the payload
-//           68      u32 hit record count (version 2; 0 in version 1)
-//           72      u32 hit statistics epoch (version 2; 0 in version 1)
+//           68      u32 hit record count (0 in version 1)
+//           72      u32 hit statistics epoch (0 when the file holds no statistics)
 //           76      u32 CRC-32 of header bytes 0..75
+//   format  (version 3, the first 8 bytes of the payload) the layout of the records' voxel words
+//           (iwlo::VoxelFormat): u32 count bits, i32 fraction bits
 //   record  i32 x, y, z block coordinate (absolute, voxel key >> 3), u32 known voxels n (1..512),
 //           8 x u64 mask of the known voxels (bit i = the voxel at x + 8 y + 64 z inside the
-//           block, whatever the in-memory layout), then n x (f32 log-odds bits as u32, u16 count)
-//           in that order.
-//   hit record (version 2, after the voxel records): i32 x, y, z block coordinate, u32 visited
+//           block, whatever the in-memory layout), then n x u32 voxel words in that order.
+//   hit record (after the voxel records): i32 x, y, z block coordinate, u32 visited
 //           voxels n (1..512), 8 x u64 mask of the visited voxels (as above), then n x (3 x f64
 //           sum of hit offsets from the voxel centre, u32 hits, u32 visits).
 // Records of each kind are sorted by block coordinate, which makes a file a canonical image of its
@@ -35,12 +36,20 @@
 //
 // The header has its own checksum so that a map can be opened by reading headers only; the
 // version is checked before that checksum, so a newer file is reported as newer, not as corrupt.
+//
+// Older versions are read and converted: version 1 (no statistics) and 2 (with statistics) have
+// no format block and store each voxel as (f32 log-odds bits as u32, u16 count), 6 bytes. A
+// reader converts every voxel to the map's own format (iwlo::VoxelFormat::encode_kept(), counts
+// saturated), as it converts the words of a version-3 file of another layout; a tile is written
+// in version 3 and the map's format the next time it is written.
 
 #include "backends/disk/file_io.h"
 #include "integrate/hit_accumulator.h"
 #include "storage/block_grid.h"
+#include "iwlomap/iwlo.h"
 #include "iwlomap/voxel_key.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -52,10 +61,12 @@
 
 namespace iwlomap::detail {
 
-inline constexpr std::uint32_t kTileFormatVersion = 2;  // the newest this build reads and writes
+inline constexpr std::uint32_t kTileFormatVersion = 3;  // the newest this build reads, and the one it writes
 inline constexpr std::size_t kTileHeaderBytes = 80;
+inline constexpr std::size_t kFormatBlockBytes = 8;            // version 3: the records' voxel layout
 inline constexpr std::size_t kRecordFixedBytes = 12 + 4 + 64;  // key, count, mask
-inline constexpr std::size_t kVoxelBytes = 6;                  // f32 log-odds, u16 count
+inline constexpr std::size_t kVoxelBytes = 4;                  // a voxel word
+inline constexpr std::size_t kOldVoxelBytes = 6;               // versions 1 and 2: f32 log-odds, u16 count
 inline constexpr std::size_t kHitCellBytes = 32;               // 3 x f64 offset sum, u32 hits, u32 visits
 
 /// index_in_block() of the voxel at file position \p f = x + 8 y + 64 z of a block record.
@@ -81,11 +92,12 @@ struct TileHeader {
   std::uint32_t header_crc = 0;  // bytes 76..79: names this exact file in the map's manifest
 };
 
-/// Serialises the known voxels of \p grid, the blocks of tile \p tile, and the statistics in
-/// \p hits (null: none, and a version-1 file) of epoch \p hit_epoch, into \p out (replaced).
-/// Returns the number of known voxels written.
-std::uint64_t encode_tile(const BlockGrid& grid, const HitAccumulator* hits, std::uint32_t hit_epoch, double resolution,
-                          std::uint32_t tile_voxels, const VoxelKey& tile, std::vector<std::uint8_t>& out);
+/// Serialises the known voxels of \p grid (words of format \p format), the blocks of tile
+/// \p tile, and the statistics in \p hits (null: none) of epoch \p hit_epoch, into \p out
+/// (replaced). Returns the number of known voxels written.
+std::uint64_t encode_tile(const BlockGrid& grid, const iwlo::VoxelFormat& format, const HitAccumulator* hits,
+                          std::uint32_t hit_epoch, double resolution, std::uint32_t tile_voxels, const VoxelKey& tile,
+                          std::vector<std::uint8_t>& out);
 
 /// Parses and checks the header in \p data (the first \p available bytes of a file of
 /// \p file_size bytes): magic, version, byte order, header checksum, the expected resolution,
@@ -103,18 +115,24 @@ std::uint64_t encode_tile(const BlockGrid& grid, const HitAccumulator* hits, std
 /// Checks the payload checksum of a whole tile file \p bytes (whose header \p h was parsed) and
 /// calls fn(const DenseBlock&) once per voxel record, in file order, then
 /// hit_fn(block key, const HitAccumulator::Block&) once per hit record. \p scratch is reused for
-/// every record: its voxels hold the record's known voxels and zeros elsewhere, its known field
-/// the record's count. Throws StorageError (kCorrupt) naming \p path for any inconsistency.
+/// every record: its voxels hold the record's known voxels, as words of format \p to (converted
+/// when the file holds another), and zeros elsewhere; its known field the record's count. Throws
+/// StorageError (kCorrupt) naming \p path for any inconsistency.
 template <class Fn, class HitFn>
 void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, std::uint32_t tile_voxels,
-                 const std::string& path, DenseBlock& scratch, Fn&& fn, HitFn&& hit_fn);
+                 const std::string& path, const iwlo::VoxelFormat& to, DenseBlock& scratch, Fn&& fn, HitFn&& hit_fn);
 
 /// decode_tile() of the voxel records only (the hit records are checked all the same).
 template <class Fn>
 void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, std::uint32_t tile_voxels,
-                 const std::string& path, DenseBlock& scratch, Fn&& fn) {
-  decode_tile(bytes, h, tile_voxels, path, scratch, std::forward<Fn>(fn), [](const VoxelKey&, const HitAccumulator::Block&) {});
+                 const std::string& path, const iwlo::VoxelFormat& to, DenseBlock& scratch, Fn&& fn) {
+  decode_tile(bytes, h, tile_voxels, path, to, scratch, std::forward<Fn>(fn),
+              [](const VoxelKey&, const HitAccumulator::Block&) {});
 }
+
+/// The voxel layout of a version-3 format block at \p p (a format whose update bounds are the
+/// bits' limits); throws StorageError (kCorrupt) naming \p path when it describes no valid layout.
+[[nodiscard]] iwlo::VoxelFormat load_voxel_format(const std::uint8_t* p, const std::string& path);
 
 /// "0x1234abcd", for messages.
 [[nodiscard]] std::string hex32(std::uint32_t v);
@@ -178,7 +196,7 @@ inline VoxelKey load_key(const std::uint8_t* p) noexcept {
 
 template <class Fn, class HitFn>
 void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, std::uint32_t tile_voxels,
-                 const std::string& path, DenseBlock& scratch, Fn&& fn, HitFn&& hit_fn) {
+                 const std::string& path, const iwlo::VoxelFormat& to, DenseBlock& scratch, Fn&& fn, HitFn&& hit_fn) {
   if (bytes.size() != kTileHeaderBytes + h.payload_bytes)
     throw_corrupt(path, "the file has " + std::to_string(bytes.size()) + " bytes, its header announces " +
                             std::to_string(kTileHeaderBytes + h.payload_bytes) + " (changed while read?)");
@@ -221,10 +239,19 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
       throw_corrupt(path, where + " is cut short");
     return std::pair<VoxelKey, std::uint32_t>(key, n);
   };
+  // Version 3 names its voxel format; older versions hold floats and 16-bit counts.
+  const bool words = h.version >= 3;
+  iwlo::VoxelFormat from = to;
+  if (words) {
+    if (static_cast<std::size_t>(end - p) < kFormatBlockBytes) throw_corrupt(path, "the voxel format is cut short");
+    from = load_voxel_format(p, path);
+    p += kFormatBlockBytes;
+  }
+  const bool same_format = words && from.same_layout(to);
   std::uint64_t known_total = 0;
   for (std::uint32_t r = 0; r < h.record_count; ++r) {
     const std::string where = "record " + std::to_string(r);
-    const auto [key, n] = read_record_head(where, r == 0, kVoxelBytes);
+    const auto [key, n] = read_record_head(where, r == 0, words ? kVoxelBytes : kOldVoxelBytes);
     scratch.key = key;
     scratch.known = n;
     scratch.voxels.fill(Voxel{});
@@ -235,12 +262,20 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
         m &= m - 1;
         Voxel& v = scratch.voxels[file_to_block_index(i)];
         const std::uint32_t raw = load_u32(p);
-        static_assert(sizeof(float) == sizeof(std::uint32_t), "IEEE-754 binary32 floats expected");
-        std::memcpy(&v.log_odds, &raw, sizeof raw);
-        v.count = load_u16(p + 4);
-        if (v.count == 0 || !std::isfinite(v.log_odds))
-          throw_corrupt(path, where + " holds voxel " + std::to_string(i) + " with count 0 or a non-finite log-odds");
-        p += kVoxelBytes;
+        if (words) {
+          if (from.count(raw) == 0) throw_corrupt(path, where + " holds voxel " + std::to_string(i) + " with count 0");
+          v.word = same_format ? raw : to.convert(raw, from);
+          p += kVoxelBytes;
+        } else {
+          static_assert(sizeof(float) == sizeof(std::uint32_t), "IEEE-754 binary32 floats expected");
+          float f;
+          std::memcpy(&f, &raw, sizeof raw);
+          const std::uint32_t count = load_u16(p + 4);
+          if (count == 0 || !std::isfinite(f))
+            throw_corrupt(path, where + " holds voxel " + std::to_string(i) + " with count 0 or a non-finite log-odds");
+          v.word = to.encode_kept(static_cast<double>(f), count);
+          p += kOldVoxelBytes;
+        }
       }
     }
     known_total += n;

@@ -257,7 +257,8 @@ void TileStore::write(const VoxelKey& key, const std::vector<std::uint8_t>& enco
 void TileStore::write_staged(const VoxelKey& key, std::vector<std::uint8_t>& image_buffer, DenseBlock& check_block) {
   std::string where;
   const TileHeader h = read(key, image_buffer, where);
-  decode_tile(image_buffer, h, tile_voxels_, where, check_block, [](const DenseBlock&) {});
+  decode_tile(image_buffer, h, tile_voxels_, where, iwlo::voxel_format(state_.params), check_block,
+              [](const DenseBlock&) {});
   write(key, image_buffer, static_cast<std::size_t>(h.known_voxels));
 }
 
@@ -338,7 +339,7 @@ std::vector<std::string> TileStore::set_aside_damaged() {
     if (!checked(path, [&] {
           std::string where;
           const TileHeader h = read(k, bytes, where);
-          decode_tile(bytes, h, tile_voxels_, where, *block, [](const DenseBlock&) {});
+          decode_tile(bytes, h, tile_voxels_, where, iwlo::voxel_format(state_.params), *block, [](const DenseBlock&) {});
         })) {
       committed_bytes_ -= image.committed_bytes;
       images_.erase(k);

@@ -22,6 +22,7 @@
 #include <exception>
 #include <memory>
 #include <stdexcept>
+#include <utility>
 
 namespace iwlomap {
 
@@ -62,7 +63,11 @@ struct ProbabilityUpdater::Impl {
                         updater, {known, skipped});
   }
 
-  void set(const IwloParams& p) { updater = detail::Updater(p); }
+  void set(const IwloParams& p) {
+    detail::Updater next(p);
+    detail::convert_voxels(grid, updater.format(), next.format());
+    updater = std::move(next);
+  }
 
   double resolution;
   detail::Updater updater;
@@ -155,33 +160,34 @@ void ProbabilityUpdater::set_log_odds(const Eigen::MatrixXd& points, const Eigen
   for (const detail::AbsoluteLogOdds& a : values) {
     detail::VoxelBlock* b = nullptr;
     detail::Voxel& v = acc.voxel(a.key, b);
-    if (detail::set_voxel_log_odds(*b, v, a.log_odds)) ++m.known;
+    if (detail::set_voxel_log_odds(*b, v, a.log_odds, m.updater.format())) ++m.known;
   }
   m.skipped += skip;
 }
 
 Eigen::MatrixXd ProbabilityUpdater::get_occupied_voxels(double min_probability) const {
-  return detail::occupied_matrix(impl().grid, impl().resolution, min_probability);
+  return detail::occupied_matrix(impl().grid, impl().updater.format(), impl().resolution, min_probability);
 }
 
 std::optional<VoxelState> ProbabilityUpdater::query(const Eigen::Vector3d& point) const {
-  return detail::query_point(impl().grid, impl().resolution, point);
+  return detail::query_point(impl().grid, impl().updater.format(), impl().resolution, point);
 }
 
 void ProbabilityUpdater::for_each_voxel(const std::function<void(const VoxelKey&, const VoxelState&)>& visit) const {
-  detail::for_each_state(impl().grid, visit);
+  detail::for_each_state(impl().grid, impl().updater.format(), visit);
 }
 
 void detail::BackendAccess::for_each_known_block_ram(const ProbabilityUpdater& map, const KnownBlockVisit& visit) {
   std::uint16_t index[detail::kBlockVoxels];
   float log_odds[detail::kBlockVoxels];
+  const iwlo::VoxelFormat& f = map.impl().updater.format();
   for (const detail::VoxelBlock* b : map.impl().grid.blocks()) {
     if (b->known == 0) continue;
     std::size_t n = 0;
     b->for_each_slot([&](int i, const detail::Voxel& v) {  // branch-free: unknown slots are overwritten
       index[n] = static_cast<std::uint16_t>(i);
-      log_odds[n] = v.log_odds;
-      n += v.count != 0 ? 1 : 0;
+      log_odds[n] = f.log_odds(v.word);
+      n += v.known() ? 1 : 0;
     });
     visit(b->key, index, log_odds, n);
   }
@@ -198,7 +204,7 @@ std::optional<HitStatistics> ProbabilityUpdater::hit_statistics(const Eigen::Vec
 
 Eigen::MatrixXd ProbabilityUpdater::get_occupied_mean_positions(double min_probability) {
   const Impl& m = impl();
-  return detail::occupied_mean_matrix(m.grid, m.hits.get("get_occupied_mean_positions()"), min_probability);
+  return detail::occupied_mean_matrix(m.grid, m.updater.format(), m.hits.get("get_occupied_mean_positions()"), min_probability);
 }
 
 std::unique_ptr<IMapperBackend> ProbabilityUpdater::clone() const {
