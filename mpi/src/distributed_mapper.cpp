@@ -448,17 +448,19 @@ void DistributedMapper::exchange_and_apply(std::vector<Outgoing>& outgoing) {
 }
 
 std::vector<std::pair<VoxelKey, VoxelState>> DistributedMapper::gather_voxels(int root) const {
+  // A voxel travels as its key and its 4-byte word: every rank stores the same voxel format (the
+  // same parameters), and the word holds the state exactly.
   struct Packed {
     std::int32_t x, y, z;
-    std::uint32_t count;
-    double log_odds, probability;
+    std::uint32_t word;
   };
-  static_assert(sizeof(Packed) == 32, "Packed is sent as bytes");
+  static_assert(sizeof(Packed) == 16, "Packed is sent as bytes");
+  const iwlo::VoxelFormat format = iwlo::voxel_format(local_->get_params());
   std::vector<char> mine;
   agree(comm_, rank_, attempt([&] {
           if (root < 0 || root >= size_) throw std::invalid_argument("iwlomap::mpi: root " + std::to_string(root) + " is not a rank");
           local_->for_each_voxel([&](const VoxelKey& k, const VoxelState& s) {
-            const Packed p{k.x, k.y, k.z, s.count, s.log_odds, s.probability};
+            const Packed p{k.x, k.y, k.z, format.encode_kept(s.log_odds, s.count)};
             const auto* b = reinterpret_cast<const char*>(&p);
             mine.insert(mine.end(), b, b + sizeof p);
           });
@@ -471,9 +473,9 @@ std::vector<std::pair<VoxelKey, VoxelState>> DistributedMapper::gather_voxels(in
     Packed p;
     std::memcpy(&p, all.data() + off, sizeof p);
     VoxelState s;
-    s.log_odds = p.log_odds;
-    s.probability = p.probability;
-    s.count = p.count;
+    s.log_odds = format.log_odds(p.word);
+    s.probability = iwlo::probability(s.log_odds);
+    s.count = format.count(p.word);
     out.emplace_back(VoxelKey{p.x, p.y, p.z}, s);
   }
   std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
