@@ -129,6 +129,21 @@ void bind_params(py::module_& m) {
            py::arg("occupied_flag"), py::arg("weight"), py::arg("params"));
   iwlo.def("step", &iwlo::step, py::arg("log_odds"), py::arg("count"), py::arg("intensity"), py::arg("occupied_flag"),
            py::arg("weight"), py::arg("params"), "The voxel's next log-odds after one observation (count includes it).");
+  py::class_<iwlo::VoxelFormat>(iwlo, "VoxelFormat",
+                                "How a map's voxels store their state in 4 bytes: fixed-point log-odds above a "
+                                "saturating count (see voxel_format()).")
+      .def_property_readonly("count_bits", &iwlo::VoxelFormat::count_bits)
+      .def_property_readonly("fraction_bits", &iwlo::VoxelFormat::fraction_bits)
+      .def_property_readonly("step", &iwlo::VoxelFormat::step, "the log-odds step 2^-fraction_bits")
+      .def_property_readonly("max_count", &iwlo::VoxelFormat::max_count, "counts saturate here")
+      .def("quantize", &iwlo::VoxelFormat::quantize, py::arg("log_odds"),
+           "The log-odds as an update stores it: to the nearest step, within [L_min, L_max].")
+      .def("__repr__", [](const iwlo::VoxelFormat& f) {
+        return "VoxelFormat(count_bits=" + std::to_string(f.count_bits()) +
+               ", fraction_bits=" + std::to_string(f.fraction_bits()) + ")";
+      });
+  iwlo.def("voxel_format", &iwlo::voxel_format, py::arg("params"),
+           "The voxel format of a map with these parameters; ValueError when they are invalid.");
 
   readable_enum_name(py::enum_<SensorPreset>(m, "SensorPreset", "IWLO parameters suited to a kind of sensor.")
       .value("kSonar", SensorPreset::kSonar)

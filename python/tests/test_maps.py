@@ -57,6 +57,17 @@ def test_formulas_match_hand_computed_values():
     assert iwlomap.iwlo.is_occupied_observation(True, 36.0, p)
     assert not iwlomap.iwlo.is_occupied_observation(True, 35.0, p)
     assert iwlomap.iwlo.MAX_COUNT == 65535
+    # The map's voxels: 24-bit log-odds in steps of 2^-19, 8-bit counts with the defaults.
+    f = iwlomap.iwlo.voxel_format(p)
+    assert (f.count_bits, f.fraction_bits, f.max_count, f.step) == (8, 19, 255, 2.0 ** -19)
+    stored = iwlomap.iwlo.step(0.0, 1, 255.0, True, 1.0, p)
+    assert f.quantize(stored) == round(stored * 2 ** 19) / 2 ** 19
+    m = iwlomap.ProbabilityUpdater(0.1)
+    m.batch_update_iwlo(np.array([[0.05, 0.05, 0.05]]), np.array([255.0]), [True])
+    assert m.query([0.05, 0.05, 0.05]).log_odds == f.quantize(stored)
+    slow = iwlomap.IwloParams()
+    slow.decay_rate = 0.001
+    assert iwlomap.iwlo.voxel_format(slow).max_count == 4095
 
 
 def test_presets_and_intensity_check():
