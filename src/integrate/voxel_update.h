@@ -23,11 +23,12 @@ inline void update_voxel_state(std::uint32_t& word, double intensity, bool occup
   // [q_min, q_max] lie within [L_min, L_max] * 2^f, so step()'s clamp before them changes
   // nothing. What a second observation of the voxel waits for is then an add, the bounds and
   // the conversion, not two more multiplications and a clamp.
+  // The weight is scaled before it multiplies the increment, (d * w) * 2^f == d * (w * 2^f) for
+  // the same reason, and one multiplication leaves that chain.
   const iwlo::VoxelFormat& f = u.format();
   const std::uint32_t n = f.next_count(f.count(word));
   const auto q = static_cast<double>(f.fixed(word));
-  const double d = u.weighted_delta(q * f.step(), n, intensity, occupied_flag, weight);
-  word = f.encode_fixed(q + d * f.scale(), n);
+  word = f.encode_fixed(q + u.weighted_delta(q * f.step(), n, intensity, occupied_flag, weight * f.scale()), n);
 }
 
 /// One IWLO observation of voxel \p v of block \p b.

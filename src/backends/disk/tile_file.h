@@ -49,7 +49,6 @@
 #include "iwlomap/iwlo.h"
 #include "iwlomap/voxel_key.h"
 
-#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
