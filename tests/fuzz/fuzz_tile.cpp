@@ -2,7 +2,9 @@
 // Fuzz target: the Disk backend's tile reader. The checksums are recomputed over the input first
 // (a random change would otherwise only ever exercise the checksum test), and the header's own
 // resolution, tile edge and coordinate are the expected ones, so the input reaches the record
-// decoder; every block it accepts is stored in a block grid as the backend does.
+// decoder; every block it accepts is stored in a block grid as the backend does. The map's voxel
+// layout is the defaults' or that of 12-bit counts (by the input's last byte), so both the copy
+// of words in the map's own layout and the conversion of another run.
 
 #include "backends/disk/tile_file.h"
 #include "integrate/hit_accumulator.h"
@@ -33,8 +35,14 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     d::BlockGrid grid;
     d::HitAccumulator hits(header.resolution);
     d::DenseBlock scratch;
+    static const iwlomap::iwlo::VoxelFormat formats[2] = {
+        iwlomap::iwlo::VoxelFormat{}, iwlomap::iwlo::voxel_format([] {
+          iwlomap::IwloParams p;
+          p.decay_rate = 0.001;
+          return p;
+        }())};
     d::decode_tile(
-        bytes, header, tile_voxels, "fuzz.tile", scratch,
+        bytes, header, tile_voxels, "fuzz.tile", formats[data[size - 1] & 1], scratch,
         [&](const d::DenseBlock& block) {
           if (grid.find(block.key) == nullptr) grid.add_dense(block);
         },

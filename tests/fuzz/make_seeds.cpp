@@ -57,8 +57,13 @@ void cloud_seeds(const fs::path& dir) {
   write(dir / "binary.ply", text(1, ply_bin));
 }
 
-// fuzz_tile: a tile of a few blocks, without hit statistics (format 1) and with them (format 2).
+// fuzz_tile: a tile of a few blocks (format 3), without hit statistics, with them, and in the
+// voxel layout of 12-bit counts.
 void tile_seeds(const fs::path& dir) {
+  const iwlomap::iwlo::VoxelFormat format;
+  iwlomap::IwloParams slow;
+  slow.decay_rate = 0.001;
+  const iwlomap::iwlo::VoxelFormat wide = iwlomap::iwlo::voxel_format(slow);
   const double resolution = 0.1;
   const std::uint32_t tile_voxels = 32;
   d::BlockGrid grid;
@@ -68,16 +73,21 @@ void tile_seeds(const fs::path& dir) {
     d::VoxelBlock* block = nullptr;
     d::BlockAccessor acc(grid);
     d::Voxel& v = acc.voxel(key, block);
-    v.log_odds = 0.5f * static_cast<float>(i % 9) - 2.0f;
-    v.count = static_cast<std::uint16_t>(1 + i % 4);
+    v.word = format.encode(0.5 * (i % 9) - 2.0, 1 + static_cast<std::uint32_t>(i % 4));
     ++block->known;
     hits.add_hit(key, Eigen::Vector3d(key.x + 0.5, key.y + 0.25, key.z + 0.75) * resolution);
   }
   std::vector<std::uint8_t> bytes;
-  d::encode_tile(grid, nullptr, 0, resolution, tile_voxels, iwlomap::VoxelKey{0, 0, 0}, bytes);
-  write(dir / "v1.tile", bytes);
-  d::encode_tile(grid, &hits, 3, resolution, tile_voxels, iwlomap::VoxelKey{0, 0, 0}, bytes);
-  write(dir / "v2.tile", bytes);
+  d::encode_tile(grid, format, nullptr, 0, resolution, tile_voxels, iwlomap::VoxelKey{0, 0, 0}, bytes);
+  write(dir / "plain.tile", bytes);
+  d::encode_tile(grid, format, &hits, 3, resolution, tile_voxels, iwlomap::VoxelKey{0, 0, 0}, bytes);
+  write(dir / "hits.tile", bytes);
+  for (d::VoxelBlock* b : grid.blocks())
+    b->for_each_slot([&](int i, const d::Voxel& v) {
+      if (v.known()) b->existing(i).word = wide.convert(v.word, format);
+    });
+  d::encode_tile(grid, wide, nullptr, 0, resolution, tile_voxels, iwlomap::VoxelKey{0, 0, 0}, bytes);
+  write(dir / "wide.tile", bytes);
 }
 
 void put_u16(std::vector<std::uint8_t>& b, std::size_t at, std::uint16_t v) { std::memcpy(&b[at], &v, 2); }
