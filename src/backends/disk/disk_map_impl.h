@@ -52,9 +52,9 @@ struct OutofcoreTileMapper::Impl {
         tile_size(static_cast<double>(tile_voxels) * res),
         dir(directory, res, tile, tile_voxels, read_only),
         store(dir, res, tile_voxels, detail::state_of(dir.meta())),
+        updater(store.committed_state().params),
         cache(store, cache_tiles, res, tile_voxels, total_known, hit_settings, updater.format()),
-        routing(tile_voxels),
-        updater(store.committed_state().params) {
+        routing(tile_voxels) {
     total_known = store.known();
     hit_settings = {store.committed_state().hit_statistics, store.committed_state().hit_epoch};
     dir.remove_leftovers();
@@ -507,9 +507,9 @@ struct OutofcoreTileMapper::Impl {
   detail::HitSettings hit_settings;  // (before `cache`, which reads it)
   detail::MapDirectory dir;
   detail::TileStore store;
+  detail::Updater updater;  // (before `cache`, which reads its voxel format)
   detail::TileCache cache;
   detail::TileRouting routing;
-  detail::Updater updater;
   std::size_t skipped = 0;
 
   // Buffers reused between calls.
