@@ -81,10 +81,10 @@ class VoxelFormat {
   [[nodiscard]] int count_bits() const noexcept { return static_cast<int>(count_bits_); }
   [[nodiscard]] int fraction_bits() const noexcept { return fraction_bits_; }
   /// The smallest and largest fixed-point log-odds of an update: L_min and L_max rounded inwards.
-  [[nodiscard]] std::int32_t q_min() const noexcept { return q_min_; }
-  [[nodiscard]] std::int32_t q_max() const noexcept { return q_max_; }
+  [[nodiscard]] std::int32_t q_min() const noexcept { return static_cast<std::int32_t>(update_lo_); }
+  [[nodiscard]] std::int32_t q_max() const noexcept { return static_cast<std::int32_t>(update_hi_); }
   /// The largest |q| the bits hold: 2^(31 - count_bits) - 1.
-  [[nodiscard]] std::int32_t q_limit() const noexcept { return q_limit_; }
+  [[nodiscard]] std::int32_t q_limit() const noexcept { return static_cast<std::int32_t>(limit_); }
   /// True when words of \p other mean the same as words of this format (count bits and fraction
   /// bits agree; the update bounds may differ).
   [[nodiscard]] bool same_layout(const VoxelFormat& other) const noexcept {
@@ -112,9 +112,7 @@ class VoxelFormat {
   /// A word of this format for \p word of format \p from: the same word when the layouts agree,
   /// else its log-odds rounded to this step and bounded by q_limit() only, its count saturated.
   [[nodiscard]] std::uint32_t convert(std::uint32_t word, const VoxelFormat& from) const noexcept {
-    if (same_layout(from)) return word;
-    const std::uint32_t n = from.count(word);
-    return encode_within(from.log_odds_exact(word) * scale_, n < max_count() ? n : max_count(), -limit_, limit_);
+    return same_layout(from) ? word : encode_kept(from.log_odds_exact(word), from.count(word));
   }
   /// A word for a log-odds kept from elsewhere (a file of an older version): rounded to this step,
   /// bounded by q_limit() only; \p count is saturated.
@@ -140,7 +138,7 @@ class VoxelFormat {
   [[nodiscard]] float quantize(double log_odds) const noexcept { return this->log_odds(encode(log_odds, 1)); }
 
   friend bool operator==(const VoxelFormat& a, const VoxelFormat& b) noexcept {
-    return a.same_layout(b) && a.q_min_ == b.q_min_ && a.q_max_ == b.q_max_;
+    return a.same_layout(b) && a.update_lo_ == b.update_lo_ && a.update_hi_ == b.update_hi_;
   }
   friend bool operator!=(const VoxelFormat& a, const VoxelFormat& b) noexcept { return !(a == b); }
 
@@ -164,13 +162,10 @@ class VoxelFormat {
   std::uint64_t count_mask_ = 255;
   double step_ = 0.0;       // 2^-fraction_bits
   double scale_ = 0.0;      // 2^fraction_bits
-  double update_lo_ = 0.0;  // q_min, q_max and q_limit as doubles
+  double update_lo_ = 0.0;  // q_min, q_max and q_limit (whole numbers, exact as doubles)
   double update_hi_ = 0.0;
   double limit_ = 0.0;
   int fraction_bits_ = 19;
-  std::int32_t q_min_ = 0;
-  std::int32_t q_max_ = 0;
-  std::int32_t q_limit_ = 0;
 };
 
 /// The voxel format of a map with parameters \p p (see VoxelFormat). Throws

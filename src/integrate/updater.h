@@ -33,13 +33,8 @@ class Updater {
   /// iwlo::step(log_odds, count, intensity, occupied_flag, weight, params()).
   [[nodiscard]] double step(double log_odds_value, std::uint32_t count, double intensity, bool occupied_flag,
                             double weight) const {
-    return std::clamp(step_unclamped(log_odds_value, count, intensity, occupied_flag, weight), p_.L_min, p_.L_max);
-  }
-
-  /// step() before its clamp to [L_min, L_max]: L + weighted_delta().
-  [[nodiscard]] double step_unclamped(double log_odds_value, std::uint32_t count, double intensity,
-                                      bool occupied_flag, double weight) const {
-    return log_odds_value + weighted_delta(log_odds_value, count, intensity, occupied_flag, weight);
+    return std::clamp(log_odds_value + weighted_delta(log_odds_value, count, intensity, occupied_flag, weight),
+                      p_.L_min, p_.L_max);
   }
 
   /// iwlo::delta(log_odds, count, intensity, occupied_flag, weight, params()): the increment,

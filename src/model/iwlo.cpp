@@ -75,14 +75,13 @@ int count_bits_for(const IwloParams& p) {
 VoxelFormat::VoxelFormat() : VoxelFormat(voxel_format(IwloParams{})) {}
 
 VoxelFormat::VoxelFormat(int count_bits, int fraction_bits, std::int32_t q_min, std::int32_t q_max)
-    : fraction_bits_(fraction_bits), q_min_(q_min), q_max_(q_max) {
+    : fraction_bits_(fraction_bits) {
   if (count_bits < 8 || count_bits > 16)
     throw std::invalid_argument("iwlomap: voxel format: count bits must be in 8..16, got " + std::to_string(count_bits));
   if (fraction_bits < kMinFractionBits || fraction_bits > kMaxFractionBits)
     throw std::invalid_argument("iwlomap: voxel format: fraction bits must be in " + std::to_string(kMinFractionBits) +
                                 ".." + std::to_string(kMaxFractionBits) + ", got " + std::to_string(fraction_bits));
   const std::int64_t limit = (std::int64_t{1} << (31 - count_bits)) - 1;
-  q_limit_ = static_cast<std::int32_t>(limit);
   if (!(q_min <= q_max && q_min >= -limit && q_max <= limit))
     throw std::invalid_argument("iwlomap: voxel format: stored values " + std::to_string(q_min) + ".." +
                                 std::to_string(q_max) + " do not fit " + std::to_string(32 - count_bits) + " bits");
@@ -92,7 +91,7 @@ VoxelFormat::VoxelFormat(int count_bits, int fraction_bits, std::int32_t q_min, 
   scale_ = std::ldexp(1.0, fraction_bits);
   update_lo_ = q_min;
   update_hi_ = q_max;
-  limit_ = static_cast<double>(q_limit_);
+  limit_ = static_cast<double>(limit);
 }
 
 VoxelFormat voxel_format(const IwloParams& p) {

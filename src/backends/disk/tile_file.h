@@ -246,7 +246,6 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
     from = load_voxel_format(p, path);
     p += kFormatBlockBytes;
   }
-  const bool same_format = words && from.same_layout(to);
   std::uint64_t known_total = 0;
   for (std::uint32_t r = 0; r < h.record_count; ++r) {
     const std::string where = "record " + std::to_string(r);
@@ -263,7 +262,7 @@ void decode_tile(const std::vector<std::uint8_t>& bytes, const TileHeader& h, st
         const std::uint32_t raw = load_u32(p);
         if (words) {
           if (from.count(raw) == 0) throw_corrupt(path, where + " holds voxel " + std::to_string(i) + " with count 0");
-          v.word = same_format ? raw : to.convert(raw, from);
+          v.word = to.convert(raw, from);
           p += kVoxelBytes;
         } else {
           static_assert(sizeof(float) == sizeof(std::uint32_t), "IEEE-754 binary32 floats expected");
