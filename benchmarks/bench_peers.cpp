@@ -590,9 +590,9 @@ int main(int argc, char** argv) {
         const ChildRun a = run_in_child(workloads[i].iw);
         if (workloads[i].bx && !bx_first) b = run_in_child(workloads[i].bx);
         if (k == 0) rss[i] = {a.rss_mib, b.rss_mib};
-        if (fresh) {
-          alone[i].first.push_back(a.time.wall_ms);
-          if (workloads[i].bx) alone[i].second.push_back(b.time.wall_ms);
+        if (fresh) {  // a child that failed (no time) is left out
+          if (a.time.wall_ms >= 0.0) alone[i].first.push_back(a.time.wall_ms);
+          if (workloads[i].bx && b.time.wall_ms >= 0.0) alone[i].second.push_back(b.time.wall_ms);
         }
       }
     }
