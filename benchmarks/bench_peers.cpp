@@ -534,6 +534,12 @@ int main(int argc, char** argv) {
     std::printf("  Bonxai rows SKIPPED: configure with -DIWLOMAP_BONXAI_DIR=<Bonxai source folder> to build them\n");
   std::printf("  %d timed round(s) per workload after one warm-up, medians; ratio = Bonxai time / iwlomap time\n",
               o.reps);
+  // Children forked later have built no map, so the cache this may keep is empty for them: they
+  // run with the library's defaults either way.
+  if (o.retain_memory)
+    iwlomap::bench::retain_map_memory();
+  else
+    std::printf("  library defaults: no memory kept from destroyed maps (--retain-memory keeps 64 MiB)\n");
   try {
     if (o.only == "scattered") {
       if (o.scattered == 0) throw std::invalid_argument("--only scattered with --scattered 0 runs nothing");
@@ -597,10 +603,6 @@ int main(int argc, char** argv) {
       }
     }
 
-    if (o.retain_memory)
-      iwlomap::bench::retain_map_memory();
-    else
-      std::printf("  library defaults: no memory kept from destroyed maps (--retain-memory keeps 64 MiB)\n");
     std::vector<Result> results;
     for (const Workload& w : workloads) results.push_back(measure(w, o.reps));
 
